@@ -1,0 +1,120 @@
+"""Boundary-temperature sequences for surfaces next to measured spaces (seed §3.4.5).
+
+The measured (area-weighted, eq. 13) temperature of each boundary surface has
+a random error of standard deviation ``sensor_std_c``. A Monte Carlo set of
+``sequences`` sequences per surface is drawn *independently at each time step*
+with a Latin hypercube (stratified over the sequences), and a U(0,1) sampler
+per surface selects the sequence one instance uses. The sequences cover the
+run periods only (the model never reads other hours); elsewhere the measured
+values stand.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from bpsflow.config import Boundary, Config, period_dates
+from bpsflow.errors import BpsflowError
+
+SEQUENCES_FILE = "boundary_sequences.npz"
+
+
+@lru_cache(maxsize=4)
+def read_boundary_file(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
+    """Read the measured boundary temperatures (one row per hour of the year, °C)."""
+    try:
+        frame = pd.read_csv(path)
+    except Exception as exc:  # pandas raises many parser errors
+        raise BpsflowError(f"cannot parse the boundary temperature file: {exc}", source=path) from None
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise BpsflowError(f"boundary temperature file lacks column(s) {missing}; it has "
+                           f"{list(frame.columns)} (model.boundary.surfaces.*.column)", source=path)
+    if len(frame) not in (8760, 8784):
+        raise BpsflowError(f"expected one row per hour of a year (8760), found {len(frame)}",
+                           source=path)
+    values = frame[list(columns)]
+    if not np.isfinite(values.to_numpy(dtype=float)).all():
+        bad = int(np.argwhere(~np.isfinite(values.to_numpy(dtype=float)))[0][0])
+        raise BpsflowError(f"row {bad + 2} holds a missing or non-numeric temperature", source=path)
+    return frame
+
+
+def period_hours(config: Config) -> np.ndarray:
+    """0-based hour-of-year rows covered by the config's run periods."""
+    hours: list[np.ndarray] = []
+    for period in config.model.periods:
+        first, last = period_dates(period, config.model.year)
+        start = (first.timetuple().tm_yday - 1) * 24
+        stop = last.timetuple().tm_yday * 24
+        hours.append(np.arange(start, stop))
+    return np.unique(np.concatenate(hours))
+
+
+@dataclass(frozen=True)
+class BoundarySequences:
+    """``values[surface][sequence, k]`` is the temperature (°C) at hour row ``hours[k]``."""
+
+    surfaces: tuple[str, ...]
+    hours: np.ndarray
+    values: np.ndarray  # (n_surfaces, n_sequences, n_hours), float32
+
+    def sequence(self, surface: str, index: int) -> np.ndarray:
+        return self.values[self.surfaces.index(surface), int(index)]
+
+
+def draw_sequences(boundary: Boundary, hours: np.ndarray) -> BoundarySequences:
+    """Draw the Monte Carlo boundary sequences (LHS over sequences at each time step).
+
+    For surface ``s`` and hour ``t`` the ``N`` values are
+    ``T_meas(t) + sensor_std_c * Phi^-1((pi_t(j) + U_j) / N)``, ``pi_t`` a random
+    permutation: an independent Latin hypercube per time step (seed §3.4.5).
+    """
+    surfaces = tuple(boundary.surfaces)
+    columns = tuple(boundary.surfaces[s].column for s in surfaces)
+    measured = read_boundary_file(boundary.file, columns)[list(columns)].to_numpy(dtype=float)[hours]
+    rng = np.random.default_rng(boundary.seed)
+    n = boundary.sequences
+    strata = rng.permuted(np.broadcast_to(np.arange(n)[:, None], (n, len(hours))), axis=0)
+    values = np.empty((len(surfaces), n, len(hours)), dtype=np.float32)
+    for s in range(len(surfaces)):
+        u = (rng.permuted(strata, axis=0) + rng.random((n, len(hours)))) / n
+        values[s] = measured[:, s][None, :] + boundary.sensor_std_c * stats.norm.ppf(u)
+    return BoundarySequences(surfaces=surfaces, hours=hours, values=values)
+
+
+def write_sequences(sequences: BoundarySequences, run_dir: Path) -> Path:
+    path = run_dir / SEQUENCES_FILE
+    np.savez_compressed(path, surfaces=np.array(sequences.surfaces), hours=sequences.hours,
+                        values=sequences.values)
+    return path
+
+
+@lru_cache(maxsize=2)
+def read_sequences(path: Path) -> BoundarySequences:
+    if not path.is_file():
+        raise BpsflowError(f"boundary sequences not found: {path}; run 'bpsflow sample' first")
+    with np.load(path) as data:
+        return BoundarySequences(surfaces=tuple(str(s) for s in data["surfaces"]),
+                                 hours=data["hours"], values=data["values"])
+
+
+def instance_boundary_table(boundary: Boundary, sequences: BoundarySequences | None,
+                            selection: dict[str, int]) -> pd.DataFrame:
+    """The boundary file with the selected sequence of each sampled surface substituted.
+
+    ``selection`` maps a surface to its sequence index; surfaces not in it keep
+    the measured values.
+    """
+    columns = tuple(boundary.surfaces[s].column for s in boundary.surfaces)
+    table = read_boundary_file(boundary.file, columns).copy()
+    for surface, index in selection.items():
+        column = table.columns.get_loc(boundary.surfaces[surface].column)
+        table.iloc[sequences.hours, column] = sequences.sequence(surface, index)
+    return table

@@ -1,0 +1,208 @@
+"""The ``bpsflow`` command line: a thin typer layer over the package's functions.
+
+Every command takes the YAML config first. Errors in user input print one
+paragraph naming the file and key, and exit with status 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+import yaml
+from rich.console import Console
+from rich.table import Table
+
+from bpsflow.errors import BpsflowError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="Building performance simulation under uncertainty.")
+console = Console()
+err_console = Console(stderr=True)
+
+ConfigArg = typer.Argument(..., help="The YAML config.", show_default=False)
+
+
+def _friendly(func):
+    """Turn BpsflowError (and Ctrl-C) into a clear message and a non-zero exit."""
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except BpsflowError as exc:
+            err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
+            raise typer.Exit(code=2) from None
+        except KeyboardInterrupt:
+            err_console.print("[yellow]interrupted: finished instances are kept; run the same "
+                              "command again to resume[/yellow]")
+            raise typer.Exit(code=130) from None
+    return wrapper
+
+
+def _load(config: Path, run_dir: Optional[Path]):
+    from bpsflow.config import load_config
+
+    overrides = {"execution": {"run_dir": str(run_dir.resolve())}} if run_dir else None
+    return load_config(config, overrides)
+
+
+def _write_resolved(cfg) -> None:
+    run_dir = cfg.run_dir.resolve()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.resolved.yaml").write_text(
+        yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
+
+
+RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.")
+
+
+@app.command()
+@_friendly
+def sample(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
+           samples: Optional[int] = typer.Option(None, help="Override design.samples."),
+           seed: Optional[int] = typer.Option(None, help="Override design.seed.")) -> None:
+    """Draw the design (LHS or Morris) and write samples.parquet."""
+    cfg = _load(config, run_dir)
+    if samples is not None:
+        cfg.design.samples = samples
+    if seed is not None:
+        cfg.design.seed = seed
+    path = _sample(cfg)
+    console.print(f"wrote {path} ({cfg.design.method}, {len(cfg.parameters)} parameters)")
+
+
+def _sample(cfg) -> Path:
+    from bpsflow.boundary import draw_sequences, period_hours, write_sequences
+    from bpsflow.sampling import sample as draw, write_design
+
+    design = draw(cfg)
+    run_dir = cfg.run_dir.resolve()
+    path = write_design(design, run_dir)
+    if cfg.model.boundary is not None:
+        write_sequences(draw_sequences(cfg.model.boundary, period_hours(cfg)), run_dir)
+    _write_resolved(cfg)
+    return path
+
+
+@app.command()
+@_friendly
+def check(config: Path = ConfigArg) -> None:
+    """Validate the config and every IDF target against the model, without running."""
+    from bpsflow.energyplus import find_energyplus, idd_path
+    from bpsflow.instances import check_model
+
+    cfg = _load(config, None)
+    binary = find_energyplus(cfg.model.energyplus)
+    if binary is None:
+        console.print("config is valid; no EnergyPlus binary found, IDF targets not checked")
+        return
+    targets = check_model(cfg, idd_path(binary))
+    fields = sum(len(v) for v in targets.idf_fields.values())
+    console.print(f"config is valid: {len(cfg.parameters)} parameters, {fields} IDF fields, "
+                  f"{len(targets.weather)} weather and {len(targets.boundary)} boundary samplers; "
+                  f"{len(cfg.model.tests)} tests in {len(cfg.model.periods)} run period(s)")
+
+
+@app.command()
+@_friendly
+def instances(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
+              instance: list[int] = typer.Option([0], "--instance", "-i",
+                                                 help="Instance(s) to write."),
+              out: Optional[Path] = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
+    """Write instance inputs (IDF per period, weather, boundary data) without running them."""
+    from bpsflow.energyplus import find_energyplus, idd_path
+    from bpsflow.instances import write_instance
+    from bpsflow.sampling import read_samples
+
+    cfg = _load(config, run_dir)
+    samples = read_samples(cfg.run_dir.resolve())
+    binary = find_energyplus(cfg.model.energyplus)
+    if binary is None:
+        raise BpsflowError("writing IDF instances needs EnergyPlus's IDD; no EnergyPlus found")
+    out = out or cfg.run_dir.resolve() / "inspect"
+    for i in instance:
+        if i not in samples.index:
+            raise BpsflowError(f"--instance {i}: not in samples.parquet (0..{len(samples) - 1})")
+        files = write_instance(cfg, samples.loc[i].to_dict(), out / f"{i:06d}", idd_path(binary))
+        console.print(f"instance {i}: " + ", ".join(str(p) for p in files.idfs.values()))
+
+
+@app.command()
+@_friendly
+def run(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
+        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
+        retry_failed: bool = typer.Option(False, help="Run failed instances again."),
+        keep_inputs: bool = typer.Option(False, help="Keep instance IDF/EPW/CSV files."),
+        backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+        measured: Optional[Path] = typer.Option(None, help="Measured data to draw in the figures."),
+        no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
+    """Run every instance (sampling first if needed); resume skips finished instances."""
+    from bpsflow.plots import band_summary, plot_bands
+    from bpsflow.runner import run as run_all
+    from bpsflow.sampling import SAMPLES_FILE, read_samples
+    from bpsflow.synth import read_measured
+
+    cfg = _load(config, run_dir)
+    if backend is not None:
+        if backend not in ("energyplus", "surrogate", "auto"):
+            raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got '{backend}'")
+        cfg.model.backend = backend
+    rd = cfg.run_dir.resolve()
+    if not (rd / SAMPLES_FILE).is_file():
+        console.print(f"no samples in {rd}: sampling first")
+        _sample(cfg)
+    else:
+        _write_resolved(cfg)
+    observed = read_measured(measured) if measured else None
+    summary = run_all(cfg, read_samples(rd), jobs=jobs, retry_failed=retry_failed,
+                      keep_inputs=keep_inputs, show_progress=not no_progress)
+    from bpsflow.runner import read_results
+
+    results = read_results(rd)
+    figures = plot_bands(cfg, results, rd / "figures", observed) if len(results) else []
+    table = Table(title=f"{cfg.name}: {summary.ok}/{summary.total} instances ok "
+                        f"({summary.backend}, {summary.seconds:.1f} s)")
+    for column in ("test", "output", "unit", "instances", "mean", "band_width"):
+        table.add_column(column, justify="right" if column in ("instances", "mean", "band_width")
+                         else "left")
+    for row in band_summary(cfg, results).itertuples():
+        table.add_row(row.test, row.output, row.unit, str(row.instances), f"{row.mean:.3g}",
+                      f"{row.band_width:.3g}")
+    console.print(table)
+    console.print(f"ran {summary.ran}, skipped {summary.skipped} finished, {summary.failed} "
+                  f"failed; results: {rd / 'results.parquet'}; figures: {len(figures)} in "
+                  f"{rd / 'figures'}")
+    if summary.failed:
+        console.print(f"[yellow]{summary.failed} instance(s) failed: see "
+                      f"{rd / 'manifest.parquet'} (status, error)[/yellow]")
+        raise typer.Exit(code=1)
+
+
+@app.command()
+@_friendly
+def synth(config: Path = ConfigArg,
+          truth: Path = typer.Option(..., help="YAML with the true parameter values and noise."),
+          out: Optional[Path] = typer.Option(None, help="Output folder (default RUN_DIR/truth)."),
+          run_dir: Optional[Path] = RunDirOption,
+          backend: Optional[str] = typer.Option(None, help="Override model.backend.")) -> None:
+    """Run a truth instance and write synthetic measurements (measured.csv)."""
+    from bpsflow.synth import load_truth, synthesize
+
+    cfg = _load(config, run_dir)
+    if backend is not None:
+        cfg.model.backend = backend
+    spec = load_truth(truth, cfg)
+    out = out or cfg.run_dir.resolve() / "truth"
+    path = synthesize(cfg, spec, out.resolve())
+    console.print(f"wrote {path}")
+
+
+def main() -> None:  # pragma: no cover
+    app(prog_name="bpsflow")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

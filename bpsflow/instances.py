@@ -1,0 +1,391 @@
+"""Writing perturbed EnergyPlus instances: IDF, weather file, boundary data.
+
+One instance is one sample row. For each run period it gets an IDF (the
+shipped model with the sampled values written into the targeted fields, the
+period's RunPeriod, setpoint schedules for its tests, and the configured
+hourly outputs), plus, when the sample needs them, its own weather file with
+sensor errors and its own boundary-temperature ``Schedule:File`` data.
+
+eppy parses the model once per process (the IDD is process-wide in eppy);
+every instance then sets its fields on that parse, writes the text and puts
+the nominal values back, which keeps writing to a few milliseconds.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from datetime import date, timedelta
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from bpsflow.boundary import SEQUENCES_FILE, instance_boundary_table, read_sequences
+from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Parameter, Period, Test,
+                            WeatherTarget, period_dates)
+from bpsflow.errors import BpsflowError
+from bpsflow.weather import perturb, read_epw, write_epw
+
+#: Setpoints that keep the ideal air system idle (°C).
+HEATING_OFF_C = -60.0
+COOLING_OFF_C = 100.0
+
+HEATING_SCHEDULE = "HeatingSetpointSchedule"
+COOLING_SCHEDULE = "CoolingSetpointSchedule"
+
+IDF_NAME = "in.idf"
+EPW_NAME = "in.epw"
+BOUNDARY_NAME = "boundary.csv"
+
+
+def _normalise(name: str) -> str:
+    return re.sub(r"[^a-z0-9]", "", name.lower())
+
+
+@lru_cache(maxsize=1)
+def _set_idd(idd: str) -> None:
+    from eppy.modeleditor import IDF
+
+    try:
+        IDF.setiddname(idd)
+    except Exception:  # eppy refuses a second, different IDD in one process
+        if _normalise(str(IDF.iddname)) != _normalise(idd):
+            raise
+
+
+def open_idf(path: Path, idd: Path):
+    """Parse an IDF with eppy against ``idd``, with a clear error when it does not parse."""
+    from eppy.modeleditor import IDF
+
+    _set_idd(str(idd))
+    try:
+        return IDF(str(path))
+    except Exception as exc:
+        raise BpsflowError(f"eppy could not parse the IDF against {idd}: {exc}", source=path) from None
+
+
+@dataclass(frozen=True)
+class FieldRef:
+    """A resolved IDF field: object type (upper case), index among its type, field name."""
+
+    object_type: str
+    index: int
+    object_name: str
+    field: str
+
+
+@dataclass
+class ResolvedTargets:
+    """Every parameter's targets, resolved against one IDF."""
+
+    idf_fields: dict[str, list[FieldRef]] = field(default_factory=dict)
+    weather: dict[str, list[str]] = field(default_factory=dict)
+    boundary: dict[str, list[str]] = field(default_factory=dict)
+
+
+def resolve_targets(config: Config, idf) -> ResolvedTargets:
+    """Check every target against the model and resolve it to concrete fields.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the parameter, target, IDF object and field when one does not
+        exist, or when a relative/additive target is not a number.
+    """
+    resolved = ResolvedTargets()
+    source = config.source
+    for i, parameter in enumerate(config.parameters):
+        for j, target in enumerate(parameter.targets):
+            where = f"parameters[{i}] ({parameter.name}).targets[{j}]"
+            if isinstance(target, WeatherTarget):
+                resolved.weather.setdefault(parameter.name, []).append(target.weather)
+            elif isinstance(target, BoundaryTarget):
+                resolved.boundary.setdefault(parameter.name, []).append(target.boundary)
+            else:
+                refs = _resolve_idf_target(target, idf, parameter, where, source, config.model.idf)
+                resolved.idf_fields.setdefault(parameter.name, []).extend(refs)
+    return resolved
+
+
+def _resolve_idf_target(target: IdfTarget, idf, parameter: Parameter, where: str,
+                        source, idf_path: Path) -> list[FieldRef]:
+    object_type = target.object.upper()
+    if object_type not in idf.idfobjects:
+        raise BpsflowError(f"{where}.object: '{target.object}' is not an EnergyPlus object type "
+                           f"in the IDD", source=source)
+    objects = idf.idfobjects[object_type]
+    if target.name == "*":
+        chosen = list(range(len(objects)))
+    else:
+        chosen = [k for k, obj in enumerate(objects)
+                  if object_name(obj).upper() == target.name.upper()]
+    if not chosen:
+        names = sorted({object_name(o) for o in objects})
+        raise BpsflowError(
+            f"{where}: no {target.object} object named '{target.name}' in {idf_path} "
+            f"(objects of that type: {names or 'none'})", source=source)
+    wanted = _normalise(target.field)
+    refs: list[FieldRef] = []
+    for k in chosen:
+        obj = objects[k]
+        match = [f for f in obj.fieldnames if _normalise(f) == wanted]
+        if not match:
+            raise BpsflowError(
+                f"{where}.field: {target.object} '{object_name(obj) or k}' has no field "
+                f"'{target.field}' (its fields: {', '.join(obj.fieldnames[1:])})", source=source)
+        value = obj[match[0]]
+        if parameter.mode in ("relative", "additive") and not isinstance(value, (int, float)):
+            raise BpsflowError(
+                f"{where}: field '{match[0]}' of {target.object} '{object_name(obj) or k}' "
+                f"holds '{value}', not a number, so a {parameter.mode} change cannot apply",
+                source=source)
+        refs.append(FieldRef(object_type, k, object_name(obj), match[0]))
+    return refs
+
+
+def object_name(obj) -> str:
+    """An eppy object's name: its ``Name`` field, or the first field when that is a name."""
+    if "Name" in obj.fieldnames:
+        return str(obj.Name)
+    if len(obj.fieldnames) > 1 and obj.fieldnames[1].lower().endswith("name"):
+        return str(obj[obj.fieldnames[1]])
+    return ""
+
+
+def apply_mode(mode: str, nominal: float, value: float) -> float:
+    """The field value for a sampled ``value``: replace, multiply or add."""
+    if mode == "relative":
+        return nominal * value
+    if mode == "additive":
+        return nominal + value
+    return value
+
+
+# Schedules --------------------------------------------------------------
+
+def _day_setpoints(test: Test | None) -> tuple[list[tuple[int, float]], list[tuple[int, float]]]:
+    """(heating, cooling) setpoint profiles of one day as ``[(until_hour, °C), ...]``."""
+    if test is None or test.mode == "free_floating":
+        return [(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)]
+    setpoint = float(test.setpoint_c)
+    if test.setback_c is None:
+        active = [(24, setpoint)]
+    else:
+        back, start, end = float(test.setback_c), test.setback_start_hour, test.setback_end_hour
+        active = [(end, back), (start, setpoint), (24, back)] if end < start else [(24, setpoint)]
+    if test.mode == "heating":
+        return active, [(24, COOLING_OFF_C)]
+    return [(24, HEATING_OFF_C)], active
+
+
+def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
+    """Schedule:Compact text for the heating and cooling setpoints over ``period``.
+
+    Each test's days follow its mode (setpoint, setback window or free
+    floating); days of the period outside every test float. EnergyPlus's own
+    warm-up repeats the period's first day.
+    """
+    year = config.model.year
+    first, last = period_dates(period, year)
+    by_day: dict[date, Test] = {}
+    for test in config.tests_in(period.name):
+        start = date(year, *map(int, test.start.split("-")))
+        for d in range(test.days):
+            by_day[start + timedelta(days=d)] = test
+    days = [first + timedelta(days=d) for d in range((last - first).days + 1)]
+    profiles = [_day_setpoints(by_day.get(day)) for day in days]
+    texts = []
+    for which, name in ((0, HEATING_SCHEDULE), (1, COOLING_SCHEDULE)):
+        fields = [name, "Temperature"]
+        runs: list[tuple[date, list[tuple[int, float]]]] = []
+        for day, profile in zip(days, profiles):
+            if runs and runs[-1][1] == profile[which]:
+                runs[-1] = (day, profile[which])
+            else:
+                runs.append((day, profile[which]))
+        runs[-1] = (date(year, 12, 31), runs[-1][1])
+        for through, profile in runs:
+            fields.append(f"Through: {through:%m/%d}")
+            fields.append("For: AllDays")
+            for until, value in profile:
+                fields.extend([f"Until: {until:02d}:00", f"{value:g}"])
+        texts.append("Schedule:Compact,\n  " + ",\n  ".join(fields) + ";\n")
+    return texts[0], texts[1]
+
+
+def _period_text(config: Config, period: Period) -> str:
+    """The objects every instance of ``period`` appends: run period, schedules, outputs."""
+    first, last = period_dates(period, config.model.year)
+    heating, cooling = setpoint_schedules(config, period)
+    parts = [
+        f"Timestep, {config.model.timesteps_per_hour};\n",
+        "RunPeriod,\n  " + ",\n  ".join([
+            period.name, str(first.month), str(first.day), str(first.year),
+            str(last.month), str(last.day), str(last.year), "", "No", "No", "No", "Yes", "Yes",
+        ]) + ";\n",
+        heating, cooling,
+        "Output:SQLite, Simple;\n",
+    ]
+    variables = {(o.key, o.variable) for o in config.outputs.values()}
+    parts += [f"Output:Variable, {key}, {variable}, Hourly;\n" for key, variable in sorted(variables)]
+    return "\n".join(parts)
+
+
+#: Objects the tool writes itself for every instance; the model's own copies are removed.
+_REPLACED_TYPES = ("RUNPERIOD", "TIMESTEP", "OUTPUT:VARIABLE", "OUTPUT:METER",
+                   "OUTPUT:SQLITE", "OUTPUT:TABLE:SUMMARYREPORTS", "OUTPUT:TABLE:MONTHLY")
+
+
+@dataclass
+class Template:
+    """One parsed model with the period's fixed changes made, ready for instances."""
+
+    idf: object
+    appended: str
+    targets: ResolvedTargets
+    schedule_files: dict[str, int]  # Schedule:File name (upper) -> index
+
+
+_TEMPLATES: dict[tuple[str, str, str], Template] = {}
+
+
+def _template(config: Config, period_name: str, idd: str) -> Template:
+    """The per-process template of a period (parsed once per worker process)."""
+    key = (config.model_dump_json(), period_name, idd)
+    if key not in _TEMPLATES:
+        if len(_TEMPLATES) > 8:
+            _TEMPLATES.clear()
+        _TEMPLATES[key] = build_template(config, config.period(period_name), Path(idd))
+    return _TEMPLATES[key]
+
+
+def build_template(config: Config, period: Period, idd: Path) -> Template:
+    """Parse the model, check the targets and make the changes shared by all instances."""
+    idf = open_idf(config.model.idf, idd)
+    targets = resolve_targets(config, idf)
+    for object_type in _REPLACED_TYPES:
+        for obj in list(idf.idfobjects.get(object_type, [])):
+            idf.removeidfobject(obj)
+    for name in (HEATING_SCHEDULE, COOLING_SCHEDULE):
+        found = [o for o in idf.idfobjects["SCHEDULE:COMPACT"] if o.Name.upper() == name.upper()]
+        if not found:
+            raise BpsflowError(f"the model has no Schedule:Compact '{name}': the tool writes the "
+                               f"thermostat setpoints into it for each test", source=config.model.idf)
+        for obj in found:
+            idf.removeidfobject(obj)
+    schedule_files = {o.Name.upper(): k for k, o in enumerate(idf.idfobjects["SCHEDULE:FILE"])}
+    if config.model.boundary is not None:
+        for surface, spec in config.model.boundary.surfaces.items():
+            if spec.schedule.upper() not in schedule_files:
+                raise BpsflowError(
+                    f"model.boundary.surfaces.{surface}.schedule: no Schedule:File named "
+                    f"'{spec.schedule}' in {config.model.idf}", source=config.source)
+    return Template(idf=idf, appended=_period_text(config, period), targets=targets,
+                    schedule_files=schedule_files)
+
+
+@dataclass
+class InstanceFiles:
+    """Where an instance's inputs were written."""
+
+    directory: Path
+    idfs: dict[str, Path]
+    weather: Path
+    boundary: Path | None
+
+
+def write_instance(config: Config, sample: dict[str, float], directory: Path,
+                   idd: Path) -> InstanceFiles:
+    """Write one instance's IDF per run period, plus its weather and boundary files.
+
+    Parameters
+    ----------
+    config : Config
+    sample : dict
+        Parameter name -> sampled value (one row of ``samples.parquet``).
+    directory : Path
+        The instance directory (created); period IDFs go in sub-directories.
+    idd : Path
+        The Energy+.idd matching the model's version.
+    """
+    directory.mkdir(parents=True, exist_ok=True)
+    first = _template(config, config.model.periods[0].name, str(idd))
+    weather_errors = {
+        quantity: (config.parameter(name).mode, float(sample[name]))
+        for name, quantities in first.targets.weather.items() for quantity in quantities
+    }
+    if weather_errors:
+        epw = read_epw(config.model.weather)
+        weather = write_epw(epw, perturb(epw, weather_errors), directory / EPW_NAME)
+    else:
+        weather = config.model.weather
+    boundary_path = None
+    if config.model.boundary is not None:
+        selection = {surface: int(sample[name])
+                     for name, surfaces in first.targets.boundary.items() for surface in surfaces}
+        sequences = read_sequences(config.run_dir.resolve() / SEQUENCES_FILE) if selection else None
+        table = instance_boundary_table(config.model.boundary, sequences, selection)
+        boundary_path = directory / BOUNDARY_NAME
+        table.to_csv(boundary_path, index=False, float_format="%.3f")
+    idfs = {}
+    for period in config.model.periods:
+        template = _template(config, period.name, str(idd))
+        period_dir = directory / period.name
+        period_dir.mkdir(exist_ok=True)
+        idfs[period.name] = _write_period_idf(config, template, sample, boundary_path,
+                                              period_dir / IDF_NAME)
+    return InstanceFiles(directory=directory, idfs=idfs, weather=weather, boundary=boundary_path)
+
+
+def _write_period_idf(config: Config, template: Template, sample: dict[str, float],
+                      boundary_path: Path | None, path: Path) -> Path:
+    idf = template.idf
+    originals: list[tuple[object, str, object]] = []
+    try:
+        for name, refs in template.targets.idf_fields.items():
+            parameter = config.parameter(name)
+            for ref in refs:
+                obj = idf.idfobjects[ref.object_type][ref.index]
+                originals.append((obj, ref.field, obj[ref.field]))
+                current = obj[ref.field]
+                obj[ref.field] = _format(apply_mode(parameter.mode, _as_float(current),
+                                                    float(sample[name]))
+                                         if parameter.mode != "absolute" else float(sample[name]))
+        if boundary_path is not None:
+            for spec in config.model.boundary.surfaces.values():
+                obj = idf.idfobjects["SCHEDULE:FILE"][template.schedule_files[spec.schedule.upper()]]
+                originals.append((obj, "File_Name", obj.File_Name))
+                obj.File_Name = str(boundary_path.resolve())
+        text = idf.idfstr()
+    finally:
+        for obj, field_name, value in reversed(originals):
+            obj[field_name] = value
+    path.write_text(text + "\n" + template.appended)
+    return path
+
+
+def _as_float(value) -> float:
+    return float(value)
+
+
+def _format(value: float) -> float:
+    # 10 significant digits: exact enough, and keeps IDF text short.
+    return float(f"{value:.10g}")
+
+
+def check_model(config: Config, idd: Path) -> ResolvedTargets:
+    """Parse the model and check every target before anything runs (no files written)."""
+    template = build_template(config, config.model.periods[0], idd)
+    return template.targets
+
+
+def nominal_values(config: Config, idd: Path) -> dict[str, float]:
+    """The model's own value of each parameter's first IDF target (for reports)."""
+    template = build_template(config, config.model.periods[0], idd)
+    values: dict[str, float] = {}
+    for name, refs in template.targets.idf_fields.items():
+        ref = refs[0]
+        value = template.idf.idfobjects[ref.object_type][ref.index][ref.field]
+        values[name] = float(value) if isinstance(value, (int, float)) else np.nan
+    return values

@@ -1,0 +1,152 @@
+"""Synthetic measurements from a "true" instance with known values (seed §3.3, Table 3.3).
+
+The truth file names the perturbed value of any parameter (the others take
+their distribution's median) and, optionally, the output sensor noise. Noise
+bounds follow seed Table 3.3 and are read as three standard deviations
+(seed §3.4.3: "assuming the range is equal to three times of the standard
+deviation"): room temperature ±0.001 °C, heating/cooling power ±0.5 %.
+
+``measured.csv`` has one row per hour-ending timestamp of every test window
+and one column per configured output.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from bpsflow.config import Config, _format_location
+from bpsflow.errors import BpsflowError
+
+MEASURED_FILE = "measured.csv"
+TRUTH_FILE = "truth.json"
+
+
+class Noise(BaseModel):
+    """Sensor noise of one output: ``bound`` is 3 standard deviations."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["absolute", "relative"]
+    bound: float = Field(ge=0)
+
+
+class Truth(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    values: dict[str, float] = Field(default_factory=dict)
+    noise: dict[str, Noise] = Field(default_factory=dict)
+    seed: int = 0
+
+
+def default_noise(unit: str) -> Noise:
+    """Seed Table 3.3: ±0.001 °C for temperatures, ±0.5 % for powers."""
+    if unit.strip().upper() in ("C", "°C", "DEGC"):
+        return Noise(kind="absolute", bound=0.001)
+    return Noise(kind="relative", bound=0.005)
+
+
+def load_truth(path: Path, config: Config) -> Truth:
+    """Read and check a truth file against the config's parameters and outputs."""
+    path = Path(path)
+    if not path.is_file():
+        raise BpsflowError(f"truth file not found: {path}")
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+        truth = Truth.model_validate(raw)
+    except yaml.YAMLError as exc:
+        raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise BpsflowError(f"{_format_location(tuple(first['loc']), raw)}: {first['msg']}",
+                           source=path) from None
+    names = {p.name for p in config.parameters}
+    for name in truth.values:
+        if name not in names:
+            raise BpsflowError(f"values.{name}: not a parameter of the config "
+                               f"(expected one of {sorted(names)})", source=path)
+    for name in truth.noise:
+        if name not in config.outputs:
+            raise BpsflowError(f"noise.{name}: not an output of the config "
+                               f"(expected one of {sorted(config.outputs)})", source=path)
+    return truth
+
+
+def truth_sample(config: Config, truth: Truth) -> dict[str, float]:
+    """Every parameter's true value: the given ones, the rest at their median."""
+    return {p.name: float(truth.values.get(p.name, p.distribution.nominal))
+            for p in config.parameters}
+
+
+def add_noise(values: np.ndarray, noise: Noise, rng: np.random.Generator) -> np.ndarray:
+    """Gaussian sensor noise with standard deviation ``bound / 3`` (absolute or relative)."""
+    std = noise.bound / 3.0
+    scale = std if noise.kind == "absolute" else std * np.abs(values)
+    return values + rng.standard_normal(values.shape) * scale
+
+
+def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Truth) -> pd.DataFrame:
+    """Wide, noisy measurements from a truth instance's tidy outputs."""
+    wide = (outputs.drop_duplicates(["timestamp", "output"])
+            .pivot(index="timestamp", columns="output", values="value").sort_index())
+    rng = np.random.default_rng(truth.seed)
+    for output in wide.columns:
+        noise = truth.noise.get(output) or default_noise(config.outputs[output].unit)
+        wide[output] = add_noise(wide[output].to_numpy(), noise, rng)
+    wide.columns.name = None
+    return wide
+
+
+def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None = None) -> Path:
+    """Run the truth instance and write ``measured.csv`` and ``truth.json`` into ``out_dir``."""
+    from bpsflow.runner import choose_backend, run_instance
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    every_output = sorted(config.outputs)
+    full = config.model_copy(deep=True)
+    for test in full.model.tests:
+        test.outputs = every_output
+    full.source = config.source
+    sample = truth_sample(config, truth)
+    backend = backend or choose_backend(config)
+    if backend == "surrogate":
+        from bpsflow.surrogate import simulate_tidy
+
+        outputs = simulate_tidy(full, pd.DataFrame([sample], index=pd.Index(["truth"],
+                                                                           name="instance")))
+    else:
+        from bpsflow.energyplus import find_energyplus, idd_path
+
+        binary = find_energyplus(config.model.energyplus)
+        record = run_instance(full, "truth", sample, out_dir, binary, idd_path(binary))
+        if record.status != "ok":
+            raise BpsflowError(f"the truth instance failed: {record.error}")
+        from bpsflow.runner import INSTANCE_OUTPUTS, instance_dir
+
+        outputs = pd.read_parquet(instance_dir(out_dir, "truth") / INSTANCE_OUTPUTS)
+    measured = measurements_from_outputs(config, outputs, truth)
+    path = out_dir / MEASURED_FILE
+    measured.to_csv(path, index_label="timestamp", float_format="%.6g")
+    (out_dir / TRUTH_FILE).write_text(json.dumps(
+        {"values": sample, "noise": {k: v.model_dump() for k, v in truth.noise.items()},
+         "seed": truth.seed, "backend": backend}, indent=2))
+    return path
+
+
+def read_measured(path: Path) -> pd.DataFrame:
+    """Read a ``measured.csv`` (timestamp index, one column per output)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BpsflowError(f"measured data file not found: {path}")
+    frame = pd.read_csv(path)
+    if "timestamp" not in frame.columns:
+        raise BpsflowError("measured data needs a 'timestamp' column", source=path)
+    frame["timestamp"] = pd.to_datetime(frame["timestamp"], errors="coerce")
+    if frame["timestamp"].isna().any():
+        bad = int(frame.index[frame["timestamp"].isna()][0])
+        raise BpsflowError(f"row {bad + 2}: timestamp does not parse", source=path)
+    return frame.set_index("timestamp")
