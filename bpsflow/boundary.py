@@ -118,3 +118,33 @@ def instance_boundary_table(boundary: Boundary, sequences: BoundarySequences | N
         column = table.columns.get_loc(boundary.surfaces[surface].column)
         table.iloc[sequences.hours, column] = sequences.sequence(surface, index)
     return table
+
+
+@lru_cache(maxsize=4)
+def _boundary_lines(path: Path, columns: tuple[str, ...]) -> tuple[str, tuple[str, ...]]:
+    table = read_boundary_file(path, columns)
+    header = ",".join(table.columns)
+    lines = table.to_csv(index=False, header=False, float_format="%.3f").splitlines()
+    return header, tuple(lines)
+
+
+def write_boundary_file(boundary: Boundary, sequences: BoundarySequences | None,
+                        selection: dict[str, int], path: Path) -> Path:
+    """Write the instance's boundary file: measured data with the selected sequences substituted.
+
+    Same layout as the measured file (so the model's Schedule:File column
+    numbers hold); only the rows of the sequences' hours are re-rendered.
+    """
+    columns = tuple(boundary.surfaces[s].column for s in boundary.surfaces)
+    table = read_boundary_file(boundary.file, columns)
+    header, base_lines = _boundary_lines(boundary.file, columns)
+    lines = list(base_lines)
+    if selection:
+        values = table.to_numpy()[sequences.hours].copy()
+        for surface, index in selection.items():
+            values[:, table.columns.get_loc(boundary.surfaces[surface].column)] = \
+                sequences.sequence(surface, index)
+        for k, hour in enumerate(sequences.hours.tolist()):
+            lines[hour] = ",".join(v if isinstance(v, str) else f"{v:.4f}" for v in values[k])
+    path.write_text(header + "\n" + "\n".join(lines) + "\n")
+    return path

@@ -1,0 +1,31 @@
+"""Shared helpers for the benchmark scripts: recording figures in bench/results.json.
+
+Each figure is ``{"name": {"value", "unit", "goal", "command", "measured_on"}}``
+(DESIGN.md §11). Scripts merge their figures into the file, so one script can
+be re-run alone without losing the others'.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from datetime import date
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results.json"
+
+
+def measured_on() -> str:
+    return f"{date.today().isoformat()}, {os.cpu_count()} cores, {platform.machine()}"
+
+
+def record(name: str, value: float, unit: str, goal: str, command: str, **extra) -> dict:
+    """Merge one figure into ``bench/results.json`` and return the entry."""
+    data = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
+    entry = {"value": float(value), "unit": unit, "goal": goal, "command": command,
+             "measured_on": measured_on(), **extra}
+    data[name] = entry
+    RESULTS.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    print(f"{name}: {value:.4g} {unit} (goal {goal})")
+    return entry
