@@ -89,6 +89,17 @@ def draw_sequences(boundary: Boundary, hours: np.ndarray) -> BoundarySequences:
     return BoundarySequences(surfaces=surfaces, hours=hours, values=values)
 
 
+def ensure_sequences(config: Config) -> Path | None:
+    """Draw and write the run directory's boundary sequences unless they are there already."""
+    if config.model.boundary is None:
+        return None
+    path = config.run_dir.resolve() / SEQUENCES_FILE
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_sequences(draw_sequences(config.model.boundary, period_hours(config)), path.parent)
+    return path
+
+
 def write_sequences(sequences: BoundarySequences, run_dir: Path) -> Path:
     path = run_dir / SEQUENCES_FILE
     np.savez_compressed(path, surfaces=np.array(sequences.surfaces), hours=sequences.hours,

@@ -33,7 +33,7 @@ def _friendly(func):
         try:
             return func(*args, **kwargs)
         except BpsflowError as exc:
-            err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
+            err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False, soft_wrap=True)
             raise typer.Exit(code=2) from None
         except KeyboardInterrupt:
             err_console.print("[yellow]interrupted: finished instances are kept; run the same "
@@ -63,9 +63,22 @@ RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.
 @_friendly
 def sample(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
            samples: Optional[int] = typer.Option(None, help="Override design.samples."),
-           seed: Optional[int] = typer.Option(None, help="Override design.seed.")) -> None:
+           seed: Optional[int] = typer.Option(None, help="Override design.seed."),
+           force: bool = typer.Option(False, help="Discard instances already run in the run "
+                                                  "directory and draw a new design.")) -> None:
     """Draw the design (LHS or Morris) and write samples.parquet."""
     cfg = _load(config, run_dir)
+    rd = cfg.run_dir.resolve()
+    if (rd / "instances").is_dir():
+        if not force:
+            raise BpsflowError(f"{rd} already holds run instances of an earlier design; a new "
+                               f"design would mix with them. Use another --run-dir, or --force "
+                               f"to discard them")
+        import shutil
+
+        shutil.rmtree(rd / "instances")
+        for name in ("manifest.parquet", "results.parquet"):
+            (rd / name).unlink(missing_ok=True)
     if samples is not None:
         cfg.design.samples = samples
     if seed is not None:
@@ -75,13 +88,15 @@ def sample(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
 
 
 def _sample(cfg) -> Path:
-    from bpsflow.boundary import draw_sequences, period_hours, write_sequences
+    from bpsflow.boundary import SEQUENCES_FILE, draw_sequences, period_hours, write_sequences
     from bpsflow.sampling import sample as draw, write_design
 
     design = draw(cfg)
     run_dir = cfg.run_dir.resolve()
     path = write_design(design, run_dir)
     if cfg.model.boundary is not None:
+        # A new design gets new sequences: old instances must not mix with new ones.
+        (run_dir / SEQUENCES_FILE).unlink(missing_ok=True)
         write_sequences(draw_sequences(cfg.model.boundary, period_hours(cfg)), run_dir)
     _write_resolved(cfg)
     return path

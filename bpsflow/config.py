@@ -75,13 +75,15 @@ class BoundaryTarget(_Strict):
 
 def _target_kind(value: Any) -> str:
     if isinstance(value, dict):
-        return "weather" if "weather" in value else "boundary" if "boundary" in value else "idf"
-    return {WeatherTarget: "weather", BoundaryTarget: "boundary"}.get(type(value), "idf")
+        return ("target:weather" if "weather" in value else
+                "target:boundary" if "boundary" in value else "target:idf")
+    return {WeatherTarget: "target:weather",
+            BoundaryTarget: "target:boundary"}.get(type(value), "target:idf")
 
 
 Target = Annotated[
-    Union[Annotated[IdfTarget, Tag("idf")], Annotated[WeatherTarget, Tag("weather")],
-          Annotated[BoundaryTarget, Tag("boundary")]],
+    Union[Annotated[IdfTarget, Tag("target:idf")], Annotated[WeatherTarget, Tag("target:weather")],
+          Annotated[BoundaryTarget, Tag("target:boundary")]],
     Discriminator(_target_kind),
 ]
 
@@ -316,7 +318,7 @@ def test_dates(test: Test, year: int) -> tuple[date, date, date]:
 # Loading ---------------------------------------------------------------
 
 _UNION_TAGS = {"uniform", "normal", "beta", "lognormal", "triangular", "discrete",
-               "empirical", "sampler", "idf", "weather", "boundary"}
+               "empirical", "sampler", "target:idf", "target:weather", "target:boundary"}
 
 
 def _format_location(loc: tuple[Any, ...], raw: Any) -> str:

@@ -111,6 +111,9 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     for test in full.model.tests:
         test.outputs = every_output
     full.source = config.source
+    from bpsflow.boundary import ensure_sequences
+
+    ensure_sequences(config)
     sample = truth_sample(config, truth)
     backend = backend or choose_backend(config)
     if backend == "surrogate":

@@ -1,0 +1,201 @@
+"""A small IDF reader for the objects the surrogate needs (no IDD, no EnergyPlus).
+
+The surrogate must run without EnergyPlus installed, so it cannot ask eppy
+for field names. It reads the model's text itself and names the fields of
+the few object types it uses from a built-in table (field order as in the
+EnergyPlus 25.2 IDD). Objects of other types are kept as raw field lists so
+that a config target on them can still be recognised (and reported as
+ignored when the surrogate has no physics for it).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+from bpsflow.errors import BpsflowError
+
+_VERTICES = ("Vertex X", "Vertex Y", "Vertex Z")
+
+#: Field names (after the object type) of the object types the surrogate reads.
+FIELDS: dict[str, tuple[str, ...]] = {
+    "MATERIAL": ("Name", "Roughness", "Thickness", "Conductivity", "Density", "Specific Heat",
+                 "Thermal Absorptance", "Solar Absorptance", "Visible Absorptance"),
+    "WINDOWMATERIAL:GLAZING": (
+        "Name", "Optical Data Type", "Window Glass Spectral Data Set Name", "Thickness",
+        "Solar Transmittance at Normal Incidence",
+        "Front Side Solar Reflectance at Normal Incidence",
+        "Back Side Solar Reflectance at Normal Incidence",
+        "Visible Transmittance at Normal Incidence",
+        "Front Side Visible Reflectance at Normal Incidence",
+        "Back Side Visible Reflectance at Normal Incidence",
+        "Infrared Transmittance at Normal Incidence",
+        "Front Side Infrared Hemispherical Emissivity",
+        "Back Side Infrared Hemispherical Emissivity", "Conductivity",
+        "Dirt Correction Factor for Solar and Visible Transmittance", "Solar Diffusing"),
+    "WINDOWMATERIAL:GAS": ("Name", "Gas Type", "Thickness"),
+    "CONSTRUCTION": ("Name", "Outside Layer") + tuple(f"Layer {i}" for i in range(2, 11)),
+    "CURVE:EXPONENT": ("Name", "Coefficient1 Constant", "Coefficient2 Constant",
+                       "Coefficient3 Constant", "Minimum Value of x", "Maximum Value of x",
+                       "Minimum Curve Output", "Maximum Curve Output", "Input Unit Type for X",
+                       "Output Unit Type"),
+    "CURVE:LINEAR": ("Name", "Coefficient1 Constant", "Coefficient2 x", "Minimum Value of x",
+                     "Maximum Value of x", "Minimum Curve Output", "Maximum Curve Output",
+                     "Input Unit Type for X", "Output Unit Type"),
+    "SITE:GROUNDREFLECTANCE": tuple(f"{m} Ground Reflectance" for m in (
+        "January", "February", "March", "April", "May", "June", "July", "August",
+        "September", "October", "November", "December")),
+    "ROOMAIR:TEMPERATUREPATTERN:CONSTANTGRADIENT": (
+        "Room Air Temperature Pattern Constant Gradient Name",
+        "Control Integer for Pattern Control Schedule Name", "Thermostat Offset",
+        "Return Air Offset", "Exhaust Air Offset", "Temperature Gradient"),
+    "ZONEVENTILATION:DESIGNFLOWRATE": (
+        "Name", "Zone or ZoneList or Space or SpaceList Name", "Schedule Name",
+        "Design Flow Rate Calculation Method", "Design Flow Rate", "Flow Rate per Floor Area",
+        "Flow Rate per Person", "Air Changes per Hour", "Ventilation Type", "Fan Pressure Rise",
+        "Fan Total Efficiency", "Constant Term Coefficient", "Temperature Term Coefficient",
+        "Velocity Term Coefficient", "Velocity Squared Term Coefficient"),
+    "BUILDINGSURFACE:DETAILED": (
+        "Name", "Surface Type", "Construction Name", "Zone Name", "Space Name",
+        "Outside Boundary Condition", "Outside Boundary Condition Object", "Sun Exposure",
+        "Wind Exposure", "View Factor to Ground", "Number of Vertices"),
+    "FENESTRATIONSURFACE:DETAILED": (
+        "Name", "Surface Type", "Construction Name", "Building Surface Name",
+        "Outside Boundary Condition Object", "View Factor to Ground",
+        "Frame and Divider Name", "Multiplier", "Number of Vertices"),
+    "BUILDING": ("Name", "North Axis", "Terrain", "Loads Convergence Tolerance Value",
+                 "Temperature Convergence Tolerance Value", "Solar Distribution",
+                 "Maximum Number of Warmup Days", "Minimum Number of Warmup Days"),
+    "ZONEHVAC:IDEALLOADSAIRSYSTEM": (
+        "Name", "Availability Schedule Name", "Zone Supply Air Node Name",
+        "Zone Exhaust Air Node Name", "System Inlet Air Node Name",
+        "Maximum Heating Supply Air Temperature", "Minimum Cooling Supply Air Temperature"),
+    "SURFACECONVECTIONALGORITHM:INSIDE:USERCURVE": (
+        "Name", "Reference Temperature for Convection Heat Transfer",
+        "Hc Function of Temperature Difference Curve Name"),
+    "SURFACECONVECTIONALGORITHM:OUTSIDE:USERCURVE": (
+        "Name", "Wind Speed Type for Curve", "Hf Function of Wind Speed Curve Name",
+        "Hn Function of Temperature Difference Curve Name"),
+    "SURFACEPROPERTY:CONVECTIONCOEFFICIENTS": (
+        "Surface Name", "Convection Coefficient 1 Location", "Convection Coefficient 1 Type",
+        "Convection Coefficient 1", "Convection Coefficient 1 Schedule Name",
+        "Convection Coefficient 1 User Curve Name", "Convection Coefficient 2 Location",
+        "Convection Coefficient 2 Type", "Convection Coefficient 2",
+        "Convection Coefficient 2 Schedule Name", "Convection Coefficient 2 User Curve Name"),
+}
+
+#: Types whose objects have no name field (a target's ``name`` must be ``*``).
+UNNAMED = {"SITE:GROUNDREFLECTANCE"}
+
+
+def normalise(name: str) -> str:
+    """Field/type names compared without case, spaces or punctuation."""
+    return re.sub(r"[^a-z0-9]", "", name.lower())
+
+
+@dataclass
+class IdfObject:
+    type: str            # upper case
+    fields: list[str]    # raw text values after the type
+
+    @property
+    def name(self) -> str:
+        if self.type in UNNAMED or not self.fields:
+            return ""
+        return self.fields[0]
+
+    def field_index(self, field: str) -> int | None:
+        names = FIELDS.get(self.type)
+        if names is None:
+            return None
+        wanted = normalise(field)
+        for i, name in enumerate(names):
+            if normalise(name) == wanted:
+                return i
+        return None
+
+    def get(self, field: str, default: str = "") -> str:
+        i = self.field_index(field)
+        if i is None:
+            raise KeyError(f"{self.type} has no field '{field}' in the surrogate's table")
+        return self.fields[i] if i < len(self.fields) else default
+
+    def number(self, field: str, default: float | None = None) -> float:
+        text = self.get(field).strip()
+        if not text:
+            if default is None:
+                raise BpsflowError(f"{self.type} '{self.name}': field '{field}' is blank")
+            return default
+        try:
+            return float(text)
+        except ValueError:
+            raise BpsflowError(f"{self.type} '{self.name}': field '{field}' holds '{text}', "
+                               f"not a number") from None
+
+    def vertices(self) -> list[tuple[float, float, float]]:
+        """The vertex list of a surface (fields after 'Number of Vertices')."""
+        start = len(FIELDS[self.type])
+        values = [float(v) for v in self.fields[start:] if v.strip()]
+        return [tuple(values[i:i + 3]) for i in range(0, len(values) - 2, 3)]
+
+
+@dataclass
+class IdfModel:
+    path: Path
+    objects: list[IdfObject]
+
+    def of_type(self, object_type: str) -> list[IdfObject]:
+        object_type = object_type.upper()
+        return [o for o in self.objects if o.type == object_type]
+
+    def find(self, object_type: str, name: str) -> IdfObject:
+        for obj in self.of_type(object_type):
+            if obj.name.upper() == name.upper():
+                return obj
+        raise BpsflowError(f"the model has no {object_type} named '{name}' (the surrogate "
+                           f"needs it)", source=self.path)
+
+    def one(self, object_type: str) -> IdfObject:
+        found = self.of_type(object_type)
+        if len(found) != 1:
+            raise BpsflowError(f"expected exactly one {object_type} object, found {len(found)}",
+                               source=self.path)
+        return found[0]
+
+
+def parse_idf_text(text: str, path: Path = Path("<text>")) -> IdfModel:
+    """Split IDF text into objects: comments removed, fields split on commas."""
+    body = "\n".join(line.split("!", 1)[0] for line in text.splitlines())
+    objects = []
+    for chunk in body.split(";"):
+        parts = [p.strip() for p in chunk.split(",")]
+        if not parts or not parts[0]:
+            continue
+        objects.append(IdfObject(type=parts[0].upper(), fields=parts[1:]))
+    return IdfModel(path=path, objects=objects)
+
+
+@lru_cache(maxsize=4)
+def read_idf(path: Path) -> IdfModel:
+    path = Path(path)
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise BpsflowError(f"cannot read the IDF: {exc}", source=path) from None
+    return parse_idf_text(text, path)
+
+
+def polygon_area(vertices: list[tuple[float, float, float]]) -> float:
+    """Area of a planar polygon in 3-D (Newell's method)."""
+    nx = ny = nz = 0.0
+    for (x1, y1, z1), (x2, y2, z2) in zip(vertices, vertices[1:] + vertices[:1]):
+        nx += (y1 - y2) * (z1 + z2)
+        ny += (z1 - z2) * (x1 + x2)
+        nz += (x1 - x2) * (y1 + y2)
+    return 0.5 * (nx * nx + ny * ny + nz * nz) ** 0.5
+
+
+def centroid_height(vertices: list[tuple[float, float, float]]) -> float:
+    return sum(v[2] for v in vertices) / len(vertices)

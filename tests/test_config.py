@@ -1,0 +1,125 @@
+"""Config validation: bad input names the file and key path and exits non-zero."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+from typer.testing import CliRunner
+
+from bpsflow.cli import app
+from bpsflow.config import load_config
+from bpsflow.errors import BpsflowError
+
+from conftest import I600, i600_raw, short_raw, write_config
+
+runner = CliRunner()
+
+
+def test_shipped_config_loads_with_enough_inputs():
+    config = load_config(I600)
+    assert len(config.parameters) >= 40
+    groups = {p.group for p in config.parameters}
+    assert {"materials", "glazing", "convection", "weather", "boundary", "stratification"} <= groups
+    assert [t.name for t in config.model.tests] == [
+        "I600-C-CT", "I600-C-ST", "I600-C-FF", "I600-H-CT", "I600-H-ST", "I600-H-FF"]
+    assert config.model.weather.is_file()
+
+
+def _error(tmp_path, raw) -> str:
+    path = write_config(tmp_path, raw)
+    with pytest.raises(BpsflowError) as info:
+        load_config(path)
+    return str(info.value)
+
+
+def test_bad_distribution_parameter_names_key_path(tmp_path):
+    raw = i600_raw()
+    raw["parameters"][2]["distribution"]["std"] = -0.1
+    message = _error(tmp_path, raw)
+    assert "case.yaml" in message
+    assert f"parameters[2] ({raw['parameters'][2]['name']}).distribution.std" in message
+    assert "greater than 0" in message
+
+
+def test_inverted_uniform_bounds_are_rejected(tmp_path):
+    raw = i600_raw()
+    index = next(i for i, p in enumerate(raw["parameters"]) if p["name"] == "ground_reflectance")
+    raw["parameters"][index]["distribution"].update(lower=0.4, upper=0.1)
+    message = _error(tmp_path, raw)
+    assert "parameters[%d] (ground_reflectance).distribution" % index in message
+    assert "upper (0.1) must be greater than lower (0.4)" in message
+
+
+def test_unknown_key_and_missing_key(tmp_path):
+    raw = i600_raw()
+    raw["design"]["sampels"] = 10
+    assert "design.sampels: unknown key" in _error(tmp_path, raw)
+    raw = i600_raw()
+    del raw["model"]["idf"]
+    assert "model.idf: required key is missing" in _error(tmp_path, raw)
+
+
+def test_missing_idf_file_is_named(tmp_path):
+    raw = i600_raw()
+    raw["model"]["idf"] = str(tmp_path / "nope.idf")
+    message = _error(tmp_path, raw)
+    assert "model.idf" in message and "nope.idf" in message and "not found" in message
+
+
+def test_test_outside_its_period_and_unknown_output(tmp_path):
+    raw = short_raw()
+    raw["model"]["tests"][1]["start"] = "12-08"
+    assert "outside period 'winter'" in _error(tmp_path, raw)
+    raw = short_raw()
+    raw["model"]["tests"][0]["outputs"] = ["heating_energy_j"]
+    assert "unknown output 'heating_energy_j'" in _error(tmp_path, raw)
+
+
+def test_sampler_must_match_boundary_sequences(tmp_path):
+    raw = short_raw(boundary_sequences=20)
+    sampler = next(p for p in raw["parameters"] if p["distribution"]["type"] == "sampler")
+    sampler["distribution"]["sequences"] = 7
+    assert "must agree" in _error(tmp_path, raw)
+
+
+@pytest.mark.energyplus
+def test_unknown_idf_field_fails_before_anything_runs(tmp_path):
+    raw = short_raw()
+    raw["parameters"][0]["targets"][0]["field"] = "Conductivty"
+    path = write_config(tmp_path, raw)
+    result = runner.invoke(app, ["run", str(path), "--no-progress"])
+    assert result.exit_code == 2
+    assert "Traceback" not in result.output
+    assert "has no field 'Conductivty'" in result.output
+    assert "parameters[0]" in result.output
+    assert not (tmp_path / "run" / "instances").exists()
+
+
+@pytest.mark.energyplus
+def test_unknown_idf_object_name_is_named(tmp_path):
+    raw = short_raw()
+    raw["parameters"][0]["targets"][0]["name"] = "NoSuchMaterial"
+    result = runner.invoke(app, ["check", str(write_config(tmp_path, raw))])
+    assert result.exit_code == 2
+    assert "no Material object named 'NoSuchMaterial'" in result.output
+
+
+def test_cli_missing_config_file(tmp_path):
+    result = runner.invoke(app, ["sample", str(tmp_path / "absent.yaml")])
+    assert result.exit_code == 2
+    assert "config file not found" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_bad_weather_file_gives_clear_error(tmp_path):
+    bad = tmp_path / "bad.epw"
+    bad.write_text("this is not a weather file\n")
+    raw = short_raw()
+    raw["model"]["weather"] = str(bad)
+    path = write_config(tmp_path, raw)
+    from bpsflow.weather import read_epw
+
+    config = load_config(path)
+    with pytest.raises(BpsflowError, match="not an EPW weather file"):
+        read_epw(config.model.weather)
