@@ -65,6 +65,11 @@ FIELDS: dict[str, tuple[str, ...]] = {
         "Name", "Surface Type", "Construction Name", "Building Surface Name",
         "Outside Boundary Condition Object", "View Factor to Ground",
         "Frame and Divider Name", "Multiplier", "Number of Vertices"),
+    "SURFACEPROPERTY:OTHERSIDECOEFFICIENTS": (
+        "Name", "Combined Convective/Radiative Film Coefficient", "Constant Temperature",
+        "Constant Temperature Coefficient", "External Dry-Bulb Temperature Coefficient",
+        "Ground Temperature Coefficient", "Wind Speed Coefficient",
+        "Zone Air Temperature Coefficient", "Constant Temperature Schedule Name"),
     "BUILDING": ("Name", "North Axis", "Terrain", "Loads Convergence Tolerance Value",
                  "Temperature Convergence Tolerance Value", "Solar Distribution",
                  "Maximum Number of Warmup Days", "Minimum Number of Warmup Days"),

@@ -164,13 +164,16 @@ def double_glazing(tau: np.ndarray, rho_front: np.ndarray, rho_back: np.ndarray,
     (t1, r1f, r1b), (t2, r2f, r2b) = tables
     a1f, a1b = 1 - t1 - r1f, 1 - t1 - r1b
     a2f, a2b = 1 - t2 - r2f, 1 - t2 - r2b
-    between = 1 / (1 - r1b * r2f)
-    transmittance = t1 * t2 * between
-    absorbed_out = a1f + t1 * r2f * a1b * between
-    absorbed_in = t1 * a2f * between
-    back_t = t2 * t1 * between
-    back_in = a2b + t2 * r1b * a2f * between
-    back_out = t2 * a1b * between
+    # At grazing incidence (r = 1, t = 0) the products below are 0 * inf: zero.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = 1 / (1 - r1b * r2f)
+        fix = lambda x: np.nan_to_num(x, nan=0.0, posinf=0.0)  # noqa: E731
+        transmittance = fix(t1 * t2 * between)
+        absorbed_out = fix(a1f + t1 * r2f * a1b * between)
+        absorbed_in = fix(t1 * a2f * between)
+        back_t = fix(t2 * t1 * between)
+        back_in = fix(a2b + t2 * r1b * a2f * between)
+        back_out = fix(t2 * a1b * between)
     return GlazingTables(
         transmittance=transmittance, absorbed_out=absorbed_out, absorbed_in=absorbed_in,
         diffuse_transmittance=hemispherical(transmittance),

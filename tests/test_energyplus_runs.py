@@ -1,0 +1,159 @@
+"""Real EnergyPlus: instances carry the sampled values, runs produce outputs, failures stay isolated, resume works."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from bpsflow.cli import app
+from bpsflow.config import load_config
+from bpsflow.energyplus import find_energyplus, idd_path
+from bpsflow.instances import open_idf, write_instance
+from bpsflow.runner import read_manifest, read_results, run
+from bpsflow.sampling import read_samples
+
+from conftest import short_raw, write_config
+
+pytestmark = pytest.mark.energyplus
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """Three instances of the short case, run once for the module through the CLI."""
+    folder = tmp_path_factory.mktemp("short")
+    path = write_config(folder, short_raw(samples=3))
+    result = runner.invoke(app, ["run", str(path), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    return path, folder / "run"
+
+
+def test_instance_idf_carries_sampled_values(short_config, tmp_path):
+    config = load_config(short_config)
+    result = runner.invoke(app, ["sample", str(short_config)])
+    assert result.exit_code == 0, result.output
+    samples = read_samples(config.run_dir)
+    binary = find_energyplus()
+    idd = idd_path(binary)
+    sample = samples.loc[1].to_dict()
+    files = write_instance(config, sample, tmp_path / "inst", idd)
+    idf = open_idf(files.idfs["winter"], idd)
+    glazing = idf.getobject("WINDOWMATERIAL:GLAZING", "ClearGlass3mm")
+    assert glazing.Solar_Transmittance_at_Normal_Incidence == pytest.approx(
+        0.837 * sample["glazing_solar_transmittance"], rel=1e-8)
+    assert glazing.Dirt_Correction_Factor_for_Solar_and_Visible_Transmittance == pytest.approx(
+        sample["glazing_dirt_correction"], rel=1e-8)
+    gradient = idf.idfobjects["ROOMAIR:TEMPERATUREPATTERN:CONSTANTGRADIENT"][0]
+    assert gradient.Temperature_Gradient == pytest.approx(sample["stratification_gradient"], rel=1e-8)
+    reflectance = idf.idfobjects["SITE:GROUNDREFLECTANCE"][0]
+    assert reflectance.July_Ground_Reflectance == pytest.approx(sample["ground_reflectance"])
+    assert reflectance.December_Ground_Reflectance == pytest.approx(sample["ground_reflectance"])
+    wall_curve = idf.getobject("CURVE:EXPONENT", "WallNaturalConvectionCurve")
+    assert wall_curve.Coefficient2_Constant == pytest.approx(1.31 * sample["wall_stack_coefficient"])
+    run_period = idf.idfobjects["RUNPERIOD"][0]
+    assert (run_period.Begin_Month, run_period.Begin_Day_of_Month) == (12, 5)
+    assert (run_period.End_Month, run_period.End_Day_of_Month) == (12, 8)
+    schedule = idf.getobject("SCHEDULE:FILE", "FloorBoundaryTemperature")
+    assert schedule.File_Name == str(files.boundary.resolve())
+    # the boundary file holds the selected sequence during the run period
+    from bpsflow.boundary import read_sequences
+
+    sequences = read_sequences(config.run_dir.resolve() / "boundary_sequences.npz")
+    table = pd.read_csv(files.boundary)
+    chosen = sequences.sequence("floor", int(sample["floor_boundary_sampler"]))
+    np.testing.assert_allclose(table["floor_c"].to_numpy()[sequences.hours], chosen, atol=6e-5)
+    # and the weather file the sampled dry-bulb error (within the run period)
+    from bpsflow.weather import read_epw
+
+    base = read_epw(config.model.weather).columns["dry_bulb_temperature"]
+    perturbed = read_epw(files.weather).columns["dry_bulb_temperature"]
+    hours = sequences.hours
+    assert np.allclose(perturbed[hours] - base[hours], sample["dry_bulb_error_c"], atol=0.051)
+
+
+def test_short_run_produces_expected_outputs(finished_run):
+    path, run_dir = finished_run
+    manifest = read_manifest(run_dir)
+    assert (manifest["status"] == "ok").all() and len(manifest) == 3
+    results = read_results(run_dir)
+    assert set(results["instance"]) == {0, 1, 2}
+    heating = results[(results["test"] == "H-ST") & (results["output"] == "heating_power_w")]
+    assert heating.groupby("instance").size().tolist() == [48, 48, 48]
+    stamps = heating[heating["instance"] == 0]["timestamp"].sort_values()
+    assert stamps.iloc[0] == pd.Timestamp("2025-12-05 01:00")   # hour-ending
+    assert stamps.iloc[-1] == pd.Timestamp("2025-12-07 00:00")
+    assert heating["value"].max() > 100 and heating["value"].min() >= 0
+    air = results[(results["test"] == "H-FF")]
+    assert air["value"].between(10, 50).all()
+    # the instances differ: the sampled inputs reached EnergyPlus
+    spread = heating.groupby("instance")["value"].mean()
+    assert spread.std() > 0.1
+    # cleaned: only outputs, SQLite and .err remain
+    left = {p.name for p in (run_dir / "instances" / "000000").rglob("*") if p.is_file()}
+    assert left == {"outputs.parquet", "eplusout.sql", "eplusout.err"}
+    assert (run_dir / "figures" / "band_H-ST_heating_power_w.png").stat().st_size > 10_000
+
+
+def test_resume_skips_finished_instances(finished_run):
+    path, run_dir = finished_run
+    outputs = run_dir / "instances" / "000001" / "outputs.parquet"
+    stamp = outputs.stat().st_mtime_ns
+    before = read_results(run_dir)
+    result = runner.invoke(app, ["run", str(path), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "ran 0, skipped 3 finished" in result.output
+    assert outputs.stat().st_mtime_ns == stamp
+    pd.testing.assert_frame_equal(read_results(run_dir), before)
+
+
+def test_broken_instance_is_recorded_and_others_complete(tmp_path):
+    raw = short_raw(samples=3)
+    path = write_config(tmp_path, raw)
+    config = load_config(path)
+    assert runner.invoke(app, ["sample", str(path)]).exit_code == 0
+    samples = read_samples(config.run_dir)
+    # Instance 1 gets an impossible glazing (transmittance + reflectance > 1): a fatal
+    # EnergyPlus input error in that instance only.
+    samples.loc[1, "glazing_solar_transmittance"] = 1.15
+    samples.reset_index().to_parquet(config.run_dir / "samples.parquet", index=False)
+    result = runner.invoke(app, ["run", str(path), "--no-progress"])
+    assert result.exit_code == 1
+    assert "1 instance(s) failed" in result.output
+    manifest = read_manifest(config.run_dir).set_index("instance")
+    assert manifest.loc[1, "status"] == "failed"
+    assert "Solar Transmittance" in manifest.loc[1, "error"]
+    assert manifest.loc[[0, 2], "status"].tolist() == ["ok", "ok"]
+    assert set(read_results(config.run_dir)["instance"]) == {0, 2}
+    # a second run does not retry the failure unless asked, and then runs only it
+    summary = run(config, samples, jobs=1, show_progress=False)
+    assert (summary.ran, summary.failed) == (0, 1)
+    samples.loc[1, "glazing_solar_transmittance"] = 1.0
+    summary = run(config, samples, jobs=1, retry_failed=True, show_progress=False)
+    assert (summary.ran, summary.ok, summary.failed) == (1, 3, 0)
+    assert set(read_results(config.run_dir)["instance"]) == {0, 1, 2}
+
+
+def test_synth_writes_noisy_measurements_of_the_truth(tmp_path):
+    raw = short_raw(samples=2)
+    path = write_config(tmp_path, raw)
+    truth = tmp_path / "truth.yaml"
+    truth.write_text("seed: 3\nvalues: {stratification_gradient: 1.5, floor_boundary_sampler: 4}\n"
+                     "noise: {heating_power_w: {kind: relative, bound: 0.3}}\n")
+    result = runner.invoke(app, ["synth", str(path), "--truth", str(truth)])
+    assert result.exit_code == 0, result.output
+    measured = pd.read_csv(tmp_path / "run" / "truth" / "measured.csv", parse_dates=["timestamp"])
+    assert list(measured.columns) == ["timestamp", "cooling_power_w", "heating_power_w",
+                                      "zone_air_temperature_c"]
+    assert len(measured) == 96
+    clean = pd.read_parquet(tmp_path / "run" / "truth" / "instances" / "truth" / "outputs.parquet")
+    heat = clean[clean["output"] == "heating_power_w"].set_index("timestamp")["value"]
+    joined = measured.set_index("timestamp")["heating_power_w"].loc[heat.index]
+    on = heat > 50
+    relative = (joined[on] - heat[on]) / heat[on]
+    assert 0.05 < relative.std() < 0.15          # bound 0.3 read as 3 std -> 0.1
+    bad = tmp_path / "bad_truth.yaml"
+    bad.write_text("values: {no_such_parameter: 1}\n")
+    result = runner.invoke(app, ["synth", str(path), "--truth", str(bad)])
+    assert result.exit_code == 2 and "values.no_such_parameter" in result.output
