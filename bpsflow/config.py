@@ -21,6 +21,7 @@ Relative paths are resolved against the directory of the config file.
 
 from __future__ import annotations
 
+import copy
 import os
 import re
 from datetime import date, timedelta
@@ -366,6 +367,74 @@ def resolve_weather(path: Path, base: Path) -> Path:
         + (f" and in {bundled}" if bundled else "") + "); expected an EPW file")
 
 
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise BpsflowError(f"config file not found: {path}")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
+    if not isinstance(raw, dict):
+        raise BpsflowError("expected a mapping with sections model, parameters, design, "
+                           "outputs, execution", source=path)
+    return raw
+
+
+def _absolute_paths(raw: dict, base: Path) -> dict:
+    """Make a base config's file paths absolute, so a config extending it may live elsewhere."""
+    raw = copy.deepcopy(raw)
+
+    def fix(mapping: dict | None, key: str) -> None:
+        if isinstance(mapping, dict) and isinstance(mapping.get(key), str):
+            candidate = Path(mapping[key])
+            if not candidate.is_absolute() and (key != "weather" or (base / candidate).exists()):
+                mapping[key] = str((base / candidate).resolve())
+
+    model = raw.get("model")
+    for key in ("idf", "weather", "energyplus"):
+        fix(model, key)
+    fix(model.get("boundary") if isinstance(model, dict) else None, "file")
+    fix(raw.get("execution"), "run_dir")
+    for parameter in raw.get("parameters") or []:
+        if isinstance(parameter, dict):
+            fix(parameter.get("distribution"), "file")
+    return raw
+
+
+def _merge(base: dict, child: dict) -> dict:
+    """Deep-merge ``child`` over ``base``; ``parameters`` merge by name (replace or append)."""
+    merged = copy.deepcopy(base)
+    for key, value in child.items():
+        if key == "parameters" and isinstance(value, list) and isinstance(merged.get(key), list):
+            by_name = {p.get("name"): i for i, p in enumerate(merged[key]) if isinstance(p, dict)}
+            for parameter in value:
+                name = parameter.get("name") if isinstance(parameter, dict) else None
+                if name in by_name:
+                    merged[key][by_name[name]] = parameter
+                else:
+                    merged[key].append(parameter)
+        elif isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _read_raw(path: Path, seen: tuple[Path, ...]) -> dict:
+    """Read a config, following ``extends: OTHER.yaml`` (relative to this file)."""
+    raw = _read_yaml(path)
+    parent = raw.pop("extends", None)
+    if parent is None:
+        return raw
+    parent_path = (path.resolve().parent / str(parent)).resolve()
+    if parent_path in seen or parent_path == path.resolve():
+        raise BpsflowError(f"extends: '{parent}' extends itself (a cycle)", source=path)
+    if not parent_path.is_file():
+        raise BpsflowError(f"extends: base config not found: {parent_path}", source=path)
+    base = _absolute_paths(_read_raw(parent_path, seen + (path.resolve(),)), parent_path.parent)
+    return _merge(base, raw)
+
+
 def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
     """Read, validate and resolve a YAML config.
 
@@ -376,21 +445,19 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Co
     overrides : dict, optional
         Top-level sections merged over the file's (used by tests and the CLI).
 
+    Notes
+    -----
+    ``extends: BASE.yaml`` reads the base config first and merges this file
+    over it: mappings merge key by key, ``parameters`` by name (a parameter of
+    the same name replaces the base's, a new name is appended).
+
     Raises
     ------
     BpsflowError
         Naming the file and key path of the first problem found.
     """
     path = Path(path)
-    if not path.is_file():
-        raise BpsflowError(f"config file not found: {path}")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
-    if not isinstance(raw, dict):
-        raise BpsflowError("expected a mapping with sections model, parameters, design, "
-                           "outputs, execution", source=path)
+    raw = _read_raw(path, seen=())
     for key, value in (overrides or {}).items():
         if isinstance(value, dict) and isinstance(raw.get(key), dict):
             raw[key] = {**raw[key], **value}

@@ -123,3 +123,31 @@ def test_bad_weather_file_gives_clear_error(tmp_path):
     config = load_config(path)
     with pytest.raises(BpsflowError, match="not an EPW weather file"):
         read_epw(config.model.weather)
+
+
+def test_extends_merges_sections_and_parameters_by_name(tmp_path):
+    from conftest import ROOT
+
+    child = tmp_path / "refined.yaml"
+    child.write_text(
+        f"extends: {ROOT / 'configs' / 'i600.yaml'}\n"
+        "design: {samples: 17}\n"
+        "parameters:\n"
+        "  - name: stratification_gradient\n"
+        "    mode: absolute\n"
+        "    distribution: {type: uniform, lower: 1.2, upper: 1.5}\n"
+        "    targets: [{object: 'RoomAir:TemperaturePattern:ConstantGradient', name: CellGradient,"
+        " field: Temperature Gradient}]\n"
+        "  - name: extra_gain\n"
+        "    distribution: {type: uniform, lower: 0.9, upper: 1.1}\n"
+        "    mode: relative\n"
+        "    targets: [{object: Material, name: SouthWallGypsum, field: Conductivity}]\n")
+    base = load_config(I600)
+    config = load_config(child)
+    assert config.design.samples == 17 and config.design.seed == base.design.seed
+    assert len(config.parameters) == len(base.parameters) + 1
+    gradient = config.parameter("stratification_gradient").distribution
+    assert (gradient.lower, gradient.upper) == (1.2, 1.5)
+    assert config.model.idf == base.model.idf                 # base paths resolved at the base
+    assert config.run_dir == base.run_dir
+    assert [p.name for p in config.parameters][:3] == [p.name for p in base.parameters][:3]

@@ -44,9 +44,8 @@ class Curve:
     x_max: float = 1e9
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        x = np.clip(x, self.x_min, self.x_max)
-        return self.c1[:, None] * 0 + (self.c1 + self.c2 * x ** self.c3) \
-            if x.ndim == 1 else self.c1[:, None] + self.c2[:, None] * x ** self.c3[:, None]
+        """Per-instance value at ``x`` of shape ``(n,)``."""
+        return self.c1 + self.c2 * np.clip(x, self.x_min, self.x_max) ** self.c3
 
 
 @dataclass
@@ -389,12 +388,10 @@ def _window(values: FieldValues, obj: IdfObject, area: float, z_floor: float, he
 
 
 def _glazing(get, outer: str, inner: str) -> GlazingTables:
+    # Two different glasses would be represented by their mean optical properties;
+    # the shipped model uses one glass for both panes.
     tau_o = get(outer, "Solar Transmittance at Normal Incidence")
     tau_i = get(inner, "Solar Transmittance at Normal Incidence")
-    if not np.allclose(tau_o, tau_i) or outer.upper() != inner.upper():
-        # Different panes: use their mean optical properties for both (the shipped
-        # model uses one glass for both panes).
-        pass
     dirt = get(outer, "Dirt Correction Factor for Solar and Visible Transmittance")
     rho_f = 0.5 * (get(outer, "Front Side Solar Reflectance at Normal Incidence")
                    + get(inner, "Front Side Solar Reflectance at Normal Incidence"))

@@ -1,0 +1,401 @@
+"""The RC network of the cell and its time stepping, vectorised over instances.
+
+Nodes: the cell air (mean air temperature), a radiant star node for the
+long-wave exchange between inside faces, finite-element nodes through each
+opaque surface (outside face to inside face; for boundary surfaces the
+outside face temperature is imposed), and the two glass panes (massless, as
+in EnergyPlus's window heat balance).
+
+Each step is backward Euler: ``(C/dt + K) T' = C/dt T + q`` with the
+temperature-dependent conductances (inside convection from the surface
+curves, outside convection, linearised long-wave exchange, glazing gap) taken
+from the state at the start of the step. The ideal air system adds the
+power ``Q`` on the air node that brings the mean air temperature to the
+heating (cooling) setpoint when it would otherwise fall below (rise above)
+it: the system is linear in ``Q``, so one solve with two right-hand sides
+gives both the free-floating state and its response to ``Q``.
+
+Room air stratification (ConstantGradient): the air next to a surface is
+``T_mean + gradient * dz`` (``dz`` the surface centroid height above the
+mid-height); convection uses that temperature, the ventilation air leaves at
+the mean. EnergyPlus 25.2 holds the *mean* air temperature at the setpoint
+(its thermostat offset only shifts the reported thermostat temperature) and
+reports the ideal-loads power with the air leaving at the return air
+temperature ``T_mean + return offset`` at the flow that delivers the load
+from the supply-air temperature limit; :func:`reported_power` does the same.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bpsflow.surrogate.cell import Cell
+from bpsflow.surrogate.forcing import SIGMA, PeriodForcing, solar_inputs
+
+KELVIN = 273.15
+#: EnergyPlus's lower limit on convection coefficients (W/m²K).
+H_MIN = 0.1
+#: Air-node time schemes: (coefficient of T, coefficients of T1, T2, T3).
+AIR_SCHEMES = {1: (1.0, (1.0, 0.0, 0.0)), 3: (11 / 6, (3.0, -1.5, 1 / 3))}
+#: Initial temperature of every node (EnergyPlus starts zones and surfaces at 23 °C).
+T_INITIAL = 23.0
+
+
+def air_density(pressure: np.ndarray, t_c: np.ndarray, humidity: np.ndarray) -> np.ndarray:
+    """Moist air density (kg/m³)."""
+    return pressure / (287.042 * (t_c + KELVIN) * (1 + 1.607858 * humidity))
+
+
+def air_cp(humidity: np.ndarray) -> np.ndarray:
+    """Moist air specific heat (J/kg K)."""
+    return 1.00484e3 + 1.85895e3 * humidity
+
+
+@dataclass
+class Network:
+    n: int                       # instances
+    size: int                    # nodes
+    capacity: np.ndarray         # (n, size) J/K (0 for massless nodes)
+    static: np.ndarray           # (n, size*size) fixed conductances
+    # Variable conductances between node pairs and to known temperatures.
+    pair_pattern: np.ndarray     # (pairs, size*size)
+    diag_pattern: np.ndarray     # (diag nodes, size*size)
+    diag_nodes: list[int]
+    inside: list[int]            # inside-face node of each opaque surface
+    outside: list[int | None]    # outside-face node of outdoor surfaces
+    boundary_node: list[int | None]   # first free node of boundary surfaces
+    boundary_g: list[np.ndarray | None]  # its conductance to the imposed face (W/K)
+    pane_out: int = 0
+    pane_in: int = 0
+    pairs: list[tuple[int, int]] = field(default_factory=list)
+
+    AIR = 0
+    STAR = 1
+
+
+def build_network(cell: Cell) -> Network:
+    n = cell.n
+    nodes = 2
+    capacity: list[np.ndarray] = [np.zeros(n), np.zeros(n)]
+    static_pairs: list[tuple[int, int, np.ndarray]] = []
+    inside, outside, boundary_node, boundary_g = [], [], [], []
+    for surface in cell.opaque:
+        # Element list outside -> inside.
+        elements = []
+        for layer in surface.layers:
+            for _ in range(layer.elements):
+                dx = layer.thickness / layer.elements
+                elements.append((layer.conductivity / dx * surface.area,
+                                 layer.density * layer.specific_heat * dx * surface.area))
+        positions = len(elements) + 1
+        ids: list[int | None] = []
+        for p in range(positions):
+            if p == 0 and not surface.outdoor:
+                ids.append(None)         # imposed outside face
+                continue
+            c = np.zeros(n)
+            if p > 0:
+                c = c + elements[p - 1][1] / 2
+            if p < len(elements):
+                c = c + elements[p][1] / 2
+            capacity.append(c)
+            ids.append(nodes)
+            nodes += 1
+        for p, (g, _) in enumerate(elements):
+            if ids[p] is not None:
+                static_pairs.append((ids[p], ids[p + 1], g))
+        inside.append(ids[-1])
+        outside.append(ids[0] if surface.outdoor else None)
+        boundary_node.append(None if surface.outdoor else ids[1])
+        boundary_g.append(None if surface.outdoor else elements[0][0])
+    pane_out, pane_in = nodes, nodes + 1
+    capacity += [np.zeros(n), np.zeros(n)]
+    nodes += 2
+
+    size = nodes
+    static = np.zeros((n, size, size))
+    for i, j, g in static_pairs:
+        static[:, i, i] += g
+        static[:, j, j] += g
+        static[:, i, j] -= g
+        static[:, j, i] -= g
+    for node, g in zip(boundary_node, boundary_g):
+        if node is not None:
+            static[:, node, node] += g
+
+    pairs = []
+    for node in inside:
+        pairs += [(node, Network.AIR), (node, Network.STAR)]
+    pairs += [(pane_in, Network.AIR), (pane_in, Network.STAR), (pane_out, pane_in)]
+    pair_pattern = np.zeros((len(pairs), size, size))
+    for k, (i, j) in enumerate(pairs):
+        pair_pattern[k, i, i] = pair_pattern[k, j, j] = 1.0
+        pair_pattern[k, i, j] = pair_pattern[k, j, i] = -1.0
+    diag_nodes = [Network.AIR] + [o for o in outside if o is not None] + [pane_out]
+    diag_pattern = np.zeros((len(diag_nodes), size, size))
+    for k, node in enumerate(diag_nodes):
+        diag_pattern[k, node, node] = 1.0
+    return Network(n=n, size=size, capacity=np.stack(capacity, axis=1),
+                   static=static.reshape(n, -1), pair_pattern=pair_pattern.reshape(len(pairs), -1),
+                   diag_pattern=diag_pattern.reshape(len(diag_nodes), -1), diag_nodes=diag_nodes,
+                   inside=inside, outside=outside, boundary_node=boundary_node,
+                   boundary_g=boundary_g, pane_out=pane_out, pane_in=pane_in, pairs=pairs)
+
+
+def _gap_conductance(t1: np.ndarray, t2: np.ndarray, e1: np.ndarray, e2: np.ndarray,
+                     width: float, pressure: np.ndarray) -> np.ndarray:
+    """Air gap conductance (W/m²K): radiation plus ISO 15099 vertical-cavity convection."""
+    k1, k2 = t1 + KELVIN, t2 + KELVIN
+    radiation = SIGMA * (k1 * k1 + k2 * k2) * (k1 + k2) / (1 / e1 + 1 / e2 - 1)
+    mean = 0.5 * (k1 + k2)
+    conductivity = 2.873e-3 + 7.760e-5 * mean
+    viscosity = 3.723e-6 + 4.94e-8 * mean
+    cp = 1002.737 + 1.2324e-2 * mean
+    density = pressure * 28.97e-3 / (8.314462 * mean)
+    rayleigh = (density ** 2 * width ** 3 * 9.81 * cp * np.abs(k1 - k2)
+                / (viscosity * conductivity * mean))
+    nusselt = np.where(rayleigh > 1e4, 0.0, 1 + 1.7596678e-10 * rayleigh ** 2.2984755)
+    nusselt = np.maximum(nusselt, np.where(rayleigh > 5e4, 0.0795 * rayleigh ** 0.31,
+                                           0.028154 * rayleigh ** 0.4134))
+    return radiation + np.maximum(nusselt, 1.0) * conductivity / width
+
+
+@dataclass
+class Simulation:
+    """Per-step results: end-of-step mean air temperature and ideal-loads power."""
+
+    air: np.ndarray        # (n, steps) °C
+    power: np.ndarray      # (n, steps) W, + heating, - cooling (delivered to the air)
+    state: np.ndarray      # (n, size) final node temperatures
+    warmup_days: int = 0
+    energy: dict[str, np.ndarray] | None = None  # accounted energy per flow (J), when asked
+
+
+def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
+             min_warmup_days: int = 6, max_warmup_days: int = 25,
+             warmup_tolerance: float = 0.02, initial: np.ndarray | None = None,
+             account: bool = False, air_order: int = 3) -> Simulation:
+    """Run a period: warm-up on its first day repeated, then every day in turn."""
+    n, size = network.n, network.size
+    spd = forcing.steps_per_day
+    dt = 3600.0 / forcing.steps_per_hour
+    state = np.full((n, size), T_INITIAL) if initial is None else initial.copy()
+    stepper = _Stepper(cell, network, forcing, dt, account, air_order)
+    stepper.start(state)
+    warmup = 0
+    if max_warmup_days > 0:
+        day0 = stepper.day_inputs(0)
+        previous = state.copy()
+        for warmup in range(1, max_warmup_days + 1):
+            state, _, _ = stepper.run_day(state, day0, 0)
+            change = np.max(np.abs(state - previous))
+            previous = state.copy()
+            if warmup >= min_warmup_days and change < warmup_tolerance:
+                break
+    stepper.reset_energy(state)
+    air = np.empty((n, forcing.steps))
+    power = np.empty((n, forcing.steps))
+    for day in range(forcing.days):
+        inputs = stepper.day_inputs(day)
+        state, air[:, day * spd:(day + 1) * spd], power[:, day * spd:(day + 1) * spd] = \
+            stepper.run_day(state, inputs, day)
+    return Simulation(air=air, power=power, state=state, warmup_days=warmup,
+                      energy=stepper.energy_totals(state) if account else None)
+
+
+class _Stepper:
+    def __init__(self, cell: Cell, network: Network, forcing: PeriodForcing, dt: float,
+                 account: bool, air_order: int = 3):
+        self.cell, self.net, self.forcing, self.dt, self.account = cell, network, forcing, dt, account
+        n = network.n
+        self.opaque_areas = np.array([s.area for s in cell.opaque] + [cell.window.area])
+        self.area_total = self.opaque_areas.sum()
+        self.emissivity_in = [s.emissivity_in for s in cell.opaque] + [cell.window.emissivity_in]
+        self.dz = np.array([s.dz for s in cell.opaque] + [cell.window.dz])
+        self.curves = [s.inside_curve for s in cell.opaque] + [cell.window.inside_curve]
+        self.rhs_air = np.zeros((n, network.size, 2))
+        self.rhs_air[:, network.AIR, 1] = 1.0
+        self.energy: dict[str, np.ndarray] = {}
+        self.start_state: np.ndarray | None = None
+        self.air_order = air_order
+        self.history = None
+
+    def start(self, state: np.ndarray) -> None:
+        air = state[:, self.net.AIR].copy()
+        self.history = (air, air, air)
+
+    # Inputs of one day ------------------------------------------------
+    def day_inputs(self, day: int) -> dict:
+        f = self.forcing
+        spd = f.steps_per_day
+        steps = slice(day * spd, (day + 1) * spd)
+        n, size = self.net.n, self.net.size
+        solar = solar_inputs(self.cell, f, steps)
+        source = np.zeros((n, spd, size))
+        for i, node in enumerate(self.net.inside):
+            source[:, :, node] += solar[f"in:{i}"]
+        for i, node in enumerate(self.net.outside):
+            if node is not None:
+                source[:, :, node] += solar[f"out:{i}"]
+        source[:, :, self.net.pane_out] += solar["pane_out"]
+        source[:, :, self.net.pane_in] += solar["pane_in"]
+        boundary = np.zeros((n, spd, size))
+        for node, g, temps in zip(self.net.boundary_node, self.net.boundary_g, f.boundary):
+            if node is not None:
+                boundary[:, :, node] += g[:, None] * temps[:, steps]
+        take = lambda a: np.broadcast_to(a[:, steps], (n, spd))  # noqa: E731
+        return {"source": source, "boundary": boundary, "t_out": take(f.t_out),
+                "wind": take(f.wind), "t_sky": take(f.t_sky), "pressure": take(f.pressure),
+                "humidity": take(f.humidity), "heat": f.heating_setpoint[steps],
+                "cool": f.cooling_setpoint[steps]}
+
+    # Stepping ---------------------------------------------------------
+    def run_day(self, state: np.ndarray, inputs: dict, day: int):
+        spd = inputs["heat"].shape[0]
+        n = self.net.n
+        air = np.empty((n, spd))
+        power = np.empty((n, spd))
+        for k in range(spd):
+            state, power[:, k] = self.step(state, inputs, k)
+            air[:, k] = state[:, self.net.AIR]
+        return state, air, power
+
+    def step(self, state: np.ndarray, inputs: dict, k: int):
+        cell, net = self.cell, self.net
+        n, size = net.n, net.size
+        t_out = inputs["t_out"][:, k]
+        t_sky = inputs["t_sky"][:, k]
+        pressure = inputs["pressure"][:, k]
+        humidity = inputs["humidity"][:, k]
+        t_air = state[:, net.AIR]
+        gradient = cell.gradient
+
+        # Inside convection and long-wave exchange of each inside face.
+        faces = net.inside + [net.pane_in]
+        t_face = state[:, faces]                                    # (n, m)
+        adjacent = t_air[:, None] + gradient[:, None] * self.dz[None, :]
+        g_pairs = []
+        strat = np.zeros((n, size))
+        t_star = state[:, net.STAR] + KELVIN
+        linear = 4 * SIGMA * t_star ** 3
+        for m, (face, curve) in enumerate(zip(faces, self.curves)):
+            h = np.maximum(curve(np.abs(t_face[:, m] - adjacent[:, m])), H_MIN)
+            g_conv = h * self.opaque_areas[m]
+            area = self.opaque_areas[m]
+            g_rad = linear * self.emissivity_in[m] * area / (1 - area / self.area_total)
+            g_pairs += [g_conv, g_rad]
+            offset = g_conv * gradient * self.dz[m]
+            strat[:, face] += offset
+            strat[:, net.AIR] -= offset
+        # The glazing gap (last pair).
+        w = cell.window
+        t_po, t_pi = state[:, net.pane_out], state[:, net.pane_in]
+        gap = _gap_conductance(t_po, t_pi, w.emissivity_gap_out, w.emissivity_gap_in,
+                               w.gap_thickness, pressure)
+        g_pairs.append(w.area / (1 / gap + w.pane_resistance))
+
+        # Outside faces: convection plus long-wave to sky, ground (at the air
+        # temperature) and air; the ventilation air on the air node.
+        wind = inputs["wind"][:, k]
+        g_known = []          # diag nodes order: air, outdoor faces, pane_out
+        rhs = np.zeros((n, size))
+        density = air_density(pressure, t_out, humidity)
+        cp = air_cp(humidity)
+        vent = cell.ventilation_m3s * density * cp
+        g_known.append(vent)
+        rhs[:, net.AIR] += vent * t_out
+        exterior = [(node, s.area, s.emissivity_out, s.wind_factor, s.outside_wind,
+                     s.outside_natural, s.tilt)
+                    for node, s in zip(net.outside, cell.opaque) if node is not None]
+        exterior.append((net.pane_out, w.area, w.emissivity_out, w.wind_factor, w.outside_wind,
+                         w.outside_natural, w.tilt))
+        flows_out = []
+        for node, area, eps, factor, hf, hn, tilt in exterior:
+            t_s = state[:, node]
+            h_conv = np.maximum(hf(wind * factor) + hn(np.abs(t_s - t_out)), H_MIN)
+            cos_tilt = np.cos(np.radians(tilt))
+            f_sky, f_ground = (1 + cos_tilt) / 2, (1 - cos_tilt) / 2
+            beta = np.sqrt(f_sky)
+            ks, ka, ky = t_s + KELVIN, t_out + KELVIN, t_sky + KELVIN
+            h_air = eps * SIGMA * (ks * ks + ka * ka) * (ks + ka) * (f_sky * (1 - beta) + f_ground)
+            h_sky = eps * SIGMA * (ks * ks + ky * ky) * (ks + ky) * f_sky * beta
+            g_a, g_s = (h_conv + h_air) * area, h_sky * area
+            g_known.append(g_a + g_s)
+            rhs[:, node] += g_a * t_out + g_s * t_sky
+            flows_out.append((node, g_a, g_s))
+
+        c_air = cell.volume * air_density(pressure, t_air, humidity) * air_cp(humidity)
+        capacity = net.capacity.copy()
+        capacity[:, net.AIR] = 0.0
+        c_dt = capacity / self.dt
+
+        matrix = net.static + np.stack(g_pairs, axis=1) @ net.pair_pattern \
+            + np.stack(g_known, axis=1) @ net.diag_pattern
+        matrix[:, ::size + 1] += c_dt
+        rhs += c_dt * state + inputs["source"][:, k] + inputs["boundary"][:, k] + strat
+        # Air: EnergyPlus's third-order backward difference (its default zone air
+        # heat balance), dT/dt ~ (11/6 T - 3 T1 + 3/2 T2 - 1/3 T3) / dt.
+        h1, h2, h3 = self.history
+        coefficient, history = AIR_SCHEMES[self.air_order]
+        matrix[:, net.AIR * (size + 1)] += c_air / self.dt * coefficient
+        past = history[0] * h1 + history[1] * h2 + history[2] * h3
+        rhs[:, net.AIR] += c_air / self.dt * past
+        self.rhs_air[:, :, 0] = rhs
+        solution = np.linalg.solve(matrix.reshape(n, size, size), self.rhs_air)
+        free, unit = solution[..., 0], solution[..., 1]
+        t_free, gain = free[:, net.AIR], unit[:, net.AIR]
+        heat_sp, cool_sp = inputs["heat"][k], inputs["cool"][k]
+        q = np.where(t_free < heat_sp, (heat_sp - t_free) / gain,
+                     np.where(t_free > cool_sp, (cool_sp - t_free) / gain, 0.0))
+        new = free + q[:, None] * unit
+        if self.account:
+            stored_air = c_air * (coefficient * new[:, net.AIR] - past)
+            self._account(state, new, capacity, stored_air, q, inputs, k, vent, t_out, flows_out)
+        self.history = (new[:, net.AIR], h1, h2)
+        return new, q
+
+    # Energy accounting (tests) ----------------------------------------
+    def reset_energy(self, state: np.ndarray) -> None:
+        n = self.net.n
+        self.energy = {name: np.zeros(n) for name in
+                       ("hvac", "solar", "ventilation", "exterior", "boundary", "stored")}
+        self.start_state = state.copy()
+
+    def _account(self, old, new, capacity, stored_air, q, inputs, k, vent, t_out, flows_out):
+        if not self.energy:
+            return
+        e, dt, net = self.energy, self.dt, self.net
+        e["hvac"] += q * dt
+        e["solar"] += inputs["source"][:, k].sum(axis=1) * dt
+        e["ventilation"] += vent * (t_out - new[:, net.AIR]) * dt
+        for node, g_a, g_s in flows_out:
+            e["exterior"] += (g_a * (t_out - new[:, node])
+                              + g_s * (inputs["t_sky"][:, k] - new[:, node])) * dt
+        for node, g in zip(net.boundary_node, net.boundary_g):
+            if node is not None:
+                imposed = inputs["boundary"][:, k, node] / g
+                e["boundary"] += g * (imposed - new[:, node]) * dt
+        e["stored"] += (capacity * (new - old)).sum(axis=1) + stored_air
+
+    def energy_totals(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        return dict(self.energy)
+
+
+def reported_power(cell: Cell, power: np.ndarray, air: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(heating, cooling) power as EnergyPlus's ideal loads report them, W ≥ 0.
+
+    The load ``Q`` is delivered with supply air at the heating (cooling)
+    supply temperature limit, mass flow ``Q / (cp (T_supply - T_mean))``;
+    the reported rate uses the air leaving at ``T_mean + return offset``.
+    """
+    offset = cell.return_offset[:, None]
+    heating = np.clip(power, 0.0, None)
+    cooling = np.clip(-power, 0.0, None)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        heat_factor = (cell.heating_supply_c - air - offset) / (cell.heating_supply_c - air)
+        cool_factor = (air + offset - cell.cooling_supply_c) / (air - cell.cooling_supply_c)
+    heating = np.where(heating > 0, heating * np.nan_to_num(heat_factor, nan=1.0), 0.0)
+    cooling = np.where(cooling > 0, cooling * np.nan_to_num(cool_factor, nan=1.0), 0.0)
+    return np.clip(heating, 0.0, None), np.clip(cooling, 0.0, None)
