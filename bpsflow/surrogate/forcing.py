@@ -311,3 +311,34 @@ def solar_inputs(cell: Cell, forcing: PeriodForcing, steps: slice) -> dict[str, 
     out["lost"] = window_share * back_t[:, None] / fraction
     out["transmitted"] = transmitted_beam + g.diffuse_transmittance[:, None] * diffuse * w.area
     return out
+
+
+def constant_forcing(cell: Cell, days: int = 10, steps_per_hour: int = 6, t_out: float = 10.0,
+                     boundary_c: float | dict[int, float] = 20.0, heating_c: float = -60.0,
+                     cooling_c: float = 100.0, wind: float = 0.0, t_sky: float | None = None,
+                     first: date = date(2025, 1, 1)) -> PeriodForcing:
+    """Steady, sunless boundary conditions (for checks of the network's physics).
+
+    ``boundary_c`` is one temperature for every boundary surface or a mapping
+    from the index of an opaque surface of ``cell`` to its temperature.
+    """
+    steps = days * 24 * steps_per_hour
+    n = cell.n
+    row = lambda value: np.full((1, steps), float(value))  # noqa: E731
+    boundary = []
+    for i, surface in enumerate(cell.opaque):
+        if surface.outdoor:
+            boundary.append(None)
+        else:
+            value = boundary_c.get(i, 20.0) if isinstance(boundary_c, dict) else boundary_c
+            boundary.append(np.full((n, steps), float(value)))
+    local = pd.Timestamp(first) + pd.to_timedelta(np.arange(1, steps + 1) / steps_per_hour,
+                                                  unit="h")
+    return PeriodForcing(
+        period="constant", first=first, days=days, steps_per_hour=steps_per_hour,
+        t_out=row(t_out), wind=row(wind), t_sky=row(t_out if t_sky is None else t_sky),
+        pressure=row(101325.0), humidity=row(0.006), dni=row(0.0), dhi=row(0.0),
+        zenith=np.full(steps, 120.0), azimuth=np.full(steps, 0.0),
+        times_utc=pd.DatetimeIndex(local).tz_localize("UTC"), month=np.array(local.month - 1),
+        boundary=boundary, heating_setpoint=np.full(steps, heating_c),
+        cooling_setpoint=np.full(steps, cooling_c))

@@ -60,8 +60,6 @@ class Network:
     capacity: np.ndarray         # (n, size) J/K (0 for massless nodes)
     static: np.ndarray           # (n, size*size) fixed conductances
     # Variable conductances between node pairs and to known temperatures.
-    pair_pattern: np.ndarray     # (pairs, size*size)
-    diag_pattern: np.ndarray     # (diag nodes, size*size)
     diag_nodes: list[int]
     inside: list[int]            # inside-face node of each opaque surface
     outside: list[int | None]    # outside-face node of outdoor surfaces
@@ -70,6 +68,8 @@ class Network:
     pane_out: int = 0
     pane_in: int = 0
     pairs: list[tuple[int, int]] = field(default_factory=list)
+    off_columns: np.ndarray | None = None   # flat (i, j) and (j, i) of each pair
+    off_pairs: np.ndarray | None = None     # the pair of each of those entries
 
     AIR = 0
     STAR = 1
@@ -129,19 +129,13 @@ def build_network(cell: Cell) -> Network:
     for node in inside:
         pairs += [(node, Network.AIR), (node, Network.STAR)]
     pairs += [(pane_in, Network.AIR), (pane_in, Network.STAR), (pane_out, pane_in)]
-    pair_pattern = np.zeros((len(pairs), size, size))
-    for k, (i, j) in enumerate(pairs):
-        pair_pattern[k, i, i] = pair_pattern[k, j, j] = 1.0
-        pair_pattern[k, i, j] = pair_pattern[k, j, i] = -1.0
     diag_nodes = [Network.AIR] + [o for o in outside if o is not None] + [pane_out]
-    diag_pattern = np.zeros((len(diag_nodes), size, size))
-    for k, node in enumerate(diag_nodes):
-        diag_pattern[k, node, node] = 1.0
     return Network(n=n, size=size, capacity=np.stack(capacity, axis=1),
-                   static=static.reshape(n, -1), pair_pattern=pair_pattern.reshape(len(pairs), -1),
-                   diag_pattern=diag_pattern.reshape(len(diag_nodes), -1), diag_nodes=diag_nodes,
+                   static=static.reshape(n, -1), diag_nodes=diag_nodes,
                    inside=inside, outside=outside, boundary_node=boundary_node,
-                   boundary_g=boundary_g, pane_out=pane_out, pane_in=pane_in, pairs=pairs)
+                   boundary_g=boundary_g, pane_out=pane_out, pane_in=pane_in, pairs=pairs,
+                   off_columns=np.array([i * size + j for i, j in pairs] + [j * size + i for i, j in pairs]),
+                   off_pairs=np.array(list(range(len(pairs))) * 2))
 
 
 def _gap_conductance(t1: np.ndarray, t2: np.ndarray, e1: np.ndarray, e2: np.ndarray,
@@ -330,11 +324,20 @@ class _Stepper:
         capacity = net.capacity.copy()
         capacity[:, net.AIR] = 0.0
         c_dt = capacity / self.dt
+        c_dt_state = c_dt * state
 
-        matrix = net.static + np.stack(g_pairs, axis=1) @ net.pair_pattern \
-            + np.stack(g_known, axis=1) @ net.diag_pattern
-        matrix[:, ::size + 1] += c_dt
-        rhs += c_dt * state + inputs["source"][:, k] + inputs["boundary"][:, k] + strat
+        # Assemble without BLAS (tiny products are slow under CPU contention).
+        matrix = net.static.copy()
+        g_pairs = np.stack(g_pairs, axis=1)
+        matrix[:, net.off_columns] -= g_pairs[:, net.off_pairs]
+        diagonal = c_dt.copy()
+        for column, (i, j) in enumerate(net.pairs):
+            diagonal[:, i] += g_pairs[:, column]
+            diagonal[:, j] += g_pairs[:, column]
+        for node, g in zip(net.diag_nodes, g_known):
+            diagonal[:, node] += g
+        matrix[:, ::size + 1] += diagonal
+        rhs += c_dt_state + inputs["source"][:, k] + inputs["boundary"][:, k] + strat
         # Air: EnergyPlus's third-order backward difference (its default zone air
         # heat balance), dT/dt ~ (11/6 T - 3 T1 + 3/2 T2 - 1/3 T3) / dt.
         h1, h2, h3 = self.history
