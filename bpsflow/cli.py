@@ -215,6 +215,59 @@ def synth(config: Path = ConfigArg,
     console.print(f"wrote {path}")
 
 
+@app.command()
+@_friendly
+def validate(config: Path = ConfigArg,
+             measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
+             invalid: Optional[Path] = typer.Option(None, help="Run directory of an ensemble "
+                                                    "treated as invalid predictions (e.g. the baseline)."),
+             q: Optional[float] = typer.Option(None, help="Override validation.q."),
+             run_dir: Optional[Path] = RunDirOption) -> None:
+    """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
+    from bpsflow.plots import plot_bands
+    from bpsflow.runner import read_results
+    from bpsflow.synth import read_measured
+    from bpsflow.validation import validate as run_validation, write_outputs
+
+    cfg = _load(config, run_dir)
+    if q is not None:
+        if not 0 < q < 1:
+            raise BpsflowError(f"--q: expected a quantile between 0 and 1, got {q}")
+        cfg.validation.q = q
+    rd = cfg.run_dir.resolve()
+    observed = read_measured(measured)
+    results = read_results(rd)
+    invalid_results = read_results(invalid.resolve()) if invalid else None
+    validations = run_validation(cfg, results, observed, cfg.validation.q,
+                                 cfg.validation.estimator, invalid_results, measured)
+    paths = write_outputs(validations, rd, cfg.validation.q)
+    plot_bands(cfg, results, rd / "figures", observed)
+    table = Table(title=f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "
+                        f"{1 - cfg.validation.q:.0%}, CRPS {cfg.validation.estimator})")
+    columns = ["test", "metric", "threshold"] + (
+        ["invalid_quantile", "type_ii_risk", "reduced_risk"] if invalid else []) + \
+        ["nMCRPS / MCRPS", "CV(RMSE)", "NMBE", "G14"]
+    for column in columns:
+        table.add_column(column, justify="left" if column in ("test", "metric") else "right")
+    for v in validations:
+        row = v.row
+        temperature = row["metric"] == "MAE"
+        cells = [row["test"], f"{row['metric']} [{row['metric_unit']}]", f"{row['threshold']:.4g}"]
+        if invalid:
+            cells += [f"{row['invalid_quantile']:.4g}", f"{row['type_ii_risk']:.1%}",
+                      f"{row['reduced_risk']:.1%}"]
+        cells += [f"{row['mcrps_c']:.3g} C" if temperature else f"{row['nmcrps']:.3g}",
+                  f"{row['rmse_c']:.3g} C (RMSE)" if temperature else f"{row['cv_rmse']:.1%}",
+                  f"{row['mbe_c']:.3g} C (MBE)" if temperature else f"{row['nmbe']:.1%}",
+                  "-" if temperature else row["guideline14_hourly"]]
+        table.add_row(*cells)
+    console.print(table)
+    for v in validations:
+        if v.row["notes"]:
+            console.print(f"[yellow]{v.row['test']}: {v.row['notes']}[/yellow]")
+    console.print(f"wrote {paths['json']}, {paths['csv']}, {paths['figure']}")
+
+
 def main() -> None:  # pragma: no cover
     app(prog_name="bpsflow")
 

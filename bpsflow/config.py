@@ -220,12 +220,20 @@ class Execution(_Strict):
     keep_files: list[str] = Field(default_factory=lambda: ["eplusout.sql", "eplusout.err"])
 
 
+class ValidationSettings(_Strict):
+    """``q``: quantile of the internal ensemble's scores taken as the threshold (type I risk 1 − q)."""
+
+    q: float = Field(default=0.9, gt=0, lt=1)
+    estimator: Literal["standard", "fair"] = "standard"
+
+
 class Config(_Strict):
     model: Model
     parameters: list[Parameter] = Field(default_factory=list)
     design: Design = Field(default_factory=Design)
     outputs: dict[str, OutputVariable] = Field(min_length=1)
     execution: Execution = Field(default_factory=Execution)
+    validation: ValidationSettings = Field(default_factory=ValidationSettings)
     #: Where the config came from (set by :func:`load_config`).
     source: Path | None = Field(default=None, exclude=True)
 

@@ -233,3 +233,16 @@ def test_auto_backend_falls_back_and_runs(tmp_path, monkeypatch):
     assert sorted(results.instance.unique()) == [0, 1, 2, 3]
     assert set(manifest.backend) == {"surrogate"} and set(manifest.status) == {"ok"}
     assert results.groupby(["instance", "test"]).size().eq(48).all()
+
+
+def test_chain_elimination_equals_dense_solve(config):
+    samples = sample_columns(config, pd.DataFrame(index=pd.RangeIndex(2, name="instance")))
+    samples["glazing_dirt_correction"] = [0.75, 1.0]
+    cell = build_cell(config, field_values(config, read_idf(config.model.idf), samples))
+    network = build_network(cell)
+    forcing = constant_forcing(cell, days=2, t_out=5.0, boundary_c={1: 22.0, 2: 24.0, 3: 30.0},
+                               heating_c=28.0, cooling_c=40.0, wind=3.0, t_sky=-5.0)
+    fast = simulate(cell, network, forcing, max_warmup_days=0)
+    dense = simulate(cell, network, forcing, max_warmup_days=0, dense=True)
+    np.testing.assert_allclose(fast.state, dense.state, atol=1e-8)
+    np.testing.assert_allclose(fast.power, dense.power, rtol=1e-8, atol=1e-6)

@@ -70,6 +70,10 @@ class Network:
     pairs: list[tuple[int, int]] = field(default_factory=list)
     off_columns: np.ndarray | None = None   # flat (i, j) and (j, i) of each pair
     off_pairs: np.ndarray | None = None     # the pair of each of those entries
+    static_diagonal: np.ndarray | None = None  # (n, size) diagonal of ``static``
+    #: Node chains outside -> inside (each opaque surface, then the glazing) and
+    #: the conductances linking consecutive nodes (``None``: the glazing gap).
+    chains: list[tuple[list[int], list[np.ndarray | None]]] = field(default_factory=list)
 
     AIR = 0
     STAR = 1
@@ -81,6 +85,7 @@ def build_network(cell: Cell) -> Network:
     capacity: list[np.ndarray] = [np.zeros(n), np.zeros(n)]
     static_pairs: list[tuple[int, int, np.ndarray]] = []
     inside, outside, boundary_node, boundary_g = [], [], [], []
+    chains: list[tuple[list[int], list]] = []
     for surface in cell.opaque:
         # Element list outside -> inside.
         elements = []
@@ -103,14 +108,18 @@ def build_network(cell: Cell) -> Network:
             capacity.append(c)
             ids.append(nodes)
             nodes += 1
+        links = []
         for p, (g, _) in enumerate(elements):
             if ids[p] is not None:
                 static_pairs.append((ids[p], ids[p + 1], g))
+                links.append(g)
+        chains.append(([i for i in ids if i is not None], links))
         inside.append(ids[-1])
         outside.append(ids[0] if surface.outdoor else None)
         boundary_node.append(None if surface.outdoor else ids[1])
         boundary_g.append(None if surface.outdoor else elements[0][0])
     pane_out, pane_in = nodes, nodes + 1
+    chains.append(([pane_out, pane_in], [None]))
     capacity += [np.zeros(n), np.zeros(n)]
     nodes += 2
 
@@ -135,7 +144,9 @@ def build_network(cell: Cell) -> Network:
                    inside=inside, outside=outside, boundary_node=boundary_node,
                    boundary_g=boundary_g, pane_out=pane_out, pane_in=pane_in, pairs=pairs,
                    off_columns=np.array([i * size + j for i, j in pairs] + [j * size + i for i, j in pairs]),
-                   off_pairs=np.array(list(range(len(pairs))) * 2))
+                   off_pairs=np.array(list(range(len(pairs))) * 2),
+                   static_diagonal=static[:, np.arange(size), np.arange(size)].copy(),
+                   chains=chains)
 
 
 def _gap_conductance(t1: np.ndarray, t2: np.ndarray, e1: np.ndarray, e2: np.ndarray,
@@ -170,13 +181,13 @@ class Simulation:
 def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
              min_warmup_days: int = 6, max_warmup_days: int = 25,
              warmup_tolerance: float = 0.02, initial: np.ndarray | None = None,
-             account: bool = False, air_order: int = 3) -> Simulation:
+             account: bool = False, air_order: int = 3, dense: bool = False) -> Simulation:
     """Run a period: warm-up on its first day repeated, then every day in turn."""
     n, size = network.n, network.size
     spd = forcing.steps_per_day
     dt = 3600.0 / forcing.steps_per_hour
     state = np.full((n, size), T_INITIAL) if initial is None else initial.copy()
-    stepper = _Stepper(cell, network, forcing, dt, account, air_order)
+    stepper = _Stepper(cell, network, forcing, dt, account, air_order, dense)
     stepper.start(state)
     warmup = 0
     if max_warmup_days > 0:
@@ -201,7 +212,7 @@ def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
 
 class _Stepper:
     def __init__(self, cell: Cell, network: Network, forcing: PeriodForcing, dt: float,
-                 account: bool, air_order: int = 3):
+                 account: bool, air_order: int = 3, dense: bool = False):
         self.cell, self.net, self.forcing, self.dt, self.account = cell, network, forcing, dt, account
         n = network.n
         self.opaque_areas = np.array([s.area for s in cell.opaque] + [cell.window.area])
@@ -215,6 +226,7 @@ class _Stepper:
         self.start_state: np.ndarray | None = None
         self.air_order = air_order
         self.history = None
+        self.dense = dense
 
     def start(self, state: np.ndarray) -> None:
         air = state[:, self.net.AIR].copy()
@@ -326,28 +338,25 @@ class _Stepper:
         c_dt = capacity / self.dt
         c_dt_state = c_dt * state
 
-        # Assemble without BLAS (tiny products are slow under CPU contention).
-        matrix = net.static.copy()
         g_pairs = np.stack(g_pairs, axis=1)
-        matrix[:, net.off_columns] -= g_pairs[:, net.off_pairs]
-        diagonal = c_dt.copy()
+        diagonal = c_dt + net.static_diagonal
         for column, (i, j) in enumerate(net.pairs):
             diagonal[:, i] += g_pairs[:, column]
             diagonal[:, j] += g_pairs[:, column]
         for node, g in zip(net.diag_nodes, g_known):
             diagonal[:, node] += g
-        matrix[:, ::size + 1] += diagonal
         rhs += c_dt_state + inputs["source"][:, k] + inputs["boundary"][:, k] + strat
         # Air: EnergyPlus's third-order backward difference (its default zone air
         # heat balance), dT/dt ~ (11/6 T - 3 T1 + 3/2 T2 - 1/3 T3) / dt.
         h1, h2, h3 = self.history
         coefficient, history = AIR_SCHEMES[self.air_order]
-        matrix[:, net.AIR * (size + 1)] += c_air / self.dt * coefficient
+        diagonal[:, net.AIR] += c_air / self.dt * coefficient
         past = history[0] * h1 + history[1] * h2 + history[2] * h3
         rhs[:, net.AIR] += c_air / self.dt * past
-        self.rhs_air[:, :, 0] = rhs
-        solution = np.linalg.solve(matrix.reshape(n, size, size), self.rhs_air)
-        free, unit = solution[..., 0], solution[..., 1]
+        if self.dense:
+            free, unit = self._solve_dense(diagonal, rhs, g_pairs)
+        else:
+            free, unit = self._solve_chains(diagonal, rhs, g_pairs)
         t_free, gain = free[:, net.AIR], unit[:, net.AIR]
         heat_sp, cool_sp = inputs["heat"][k], inputs["cool"][k]
         q = np.where(t_free < heat_sp, (heat_sp - t_free) / gain,
@@ -358,6 +367,64 @@ class _Stepper:
             self._account(state, new, capacity, stored_air, q, inputs, k, vent, t_out, flows_out)
         self.history = (new[:, net.AIR], h1, h2)
         return new, q
+
+    def _solve_dense(self, diagonal, rhs, g_pairs):
+        """Free state and unit-power response by a dense solve (reference for tests)."""
+        net = self.net
+        n, size = net.n, net.size
+        matrix = net.static.copy()
+        matrix[:, ::size + 1] = 0.0
+        matrix[:, net.off_columns] -= g_pairs[:, net.off_pairs]
+        matrix[:, ::size + 1] = diagonal
+        self.rhs_air[:, :, 0] = rhs
+        solution = np.linalg.solve(matrix.reshape(n, size, size), self.rhs_air)
+        return solution[..., 0], solution[..., 1]
+
+    def _solve_chains(self, diagonal, rhs, g_pairs):
+        """Free state and unit-power response by eliminating every chain onto the hubs.
+
+        Each chain is tridiagonal and touches only the air and star nodes (by
+        its inside node), so a forward sweep from its outside end leaves one
+        equation in the two hub temperatures; the hubs solve as a 2x2 system
+        and the chains back-substitute. Exact, and far cheaper than a dense
+        solve per instance.
+        """
+        net = self.net
+        air, star = net.AIR, net.STAR
+        m_aa, m_ss = diagonal[:, air].copy(), diagonal[:, star].copy()
+        m_as = np.zeros_like(m_aa)
+        s_a, s_s = rhs[:, air].copy(), rhs[:, star].copy()
+        sweeps = []
+        for c, (nodes, links) in enumerate(net.chains):
+            links = [g_pairs[:, -1] if g is None else g for g in links]
+            d = [diagonal[:, nodes[0]]]
+            e = [rhs[:, nodes[0]]]
+            for p in range(1, len(nodes)):
+                f = links[p - 1] / d[p - 1]
+                d.append(diagonal[:, nodes[p]] - f * links[p - 1])
+                e.append(rhs[:, nodes[p]] + f * e[p - 1])
+            g_a, g_s = g_pairs[:, 2 * c], g_pairs[:, 2 * c + 1]
+            m_aa = m_aa - g_a * g_a / d[-1]
+            m_ss = m_ss - g_s * g_s / d[-1]
+            m_as = m_as + g_a * g_s / d[-1]
+            s_a = s_a + g_a * e[-1] / d[-1]
+            s_s = s_s + g_s * e[-1] / d[-1]
+            sweeps.append((nodes, links, d, e, g_a, g_s))
+        det = m_aa * m_ss - m_as * m_as
+        free = np.empty((net.n, net.size))
+        unit = np.empty((net.n, net.size))
+        for out, (r_a, r_s, chain_rhs) in ((free, (s_a, s_s, True)),
+                                           (unit, (np.ones_like(s_a), np.zeros_like(s_s), False))):
+            t_a = (m_ss * r_a + m_as * r_s) / det
+            t_s = (m_as * r_a + m_aa * r_s) / det
+            out[:, air], out[:, star] = t_a, t_s
+            for nodes, links, d, e, g_a, g_s in sweeps:
+                t = ((e[-1] if chain_rhs else 0.0) + g_a * t_a + g_s * t_s) / d[-1]
+                out[:, nodes[-1]] = t
+                for p in range(len(nodes) - 2, -1, -1):
+                    t = ((e[p] if chain_rhs else 0.0) + links[p] * t) / d[p]
+                    out[:, nodes[p]] = t
+        return free, unit
 
     # Energy accounting (tests) ----------------------------------------
     def reset_energy(self, state: np.ndarray) -> None:

@@ -1,0 +1,149 @@
+"""Probabilistic validation: thresholds from the internal ensemble, type I and type II risk.
+
+Seed §3.6.2 (Table 3.5): every instance of the internal (refined) ensemble is
+taken as a point prediction and scored against the observations (nMAE; MAE
+in °C for temperatures, which are not normalised, DESIGN.md §5). The
+validation threshold is the q-quantile of those scores, so a valid model is
+rejected with probability about 1 − q (type I risk). Predictions known to be
+invalid (the baseline ensemble, or deliberately wrong models) are accepted
+when their score is at or under the threshold: that share is the type II
+risk, and the reduced risk is q − type II. Beside them: the ensemble's
+nMCRPS (eq. 7), NMBE and CV(RMSE) of the ensemble mean (eq. 1–2) and the
+ASHRAE Guideline 14 hourly criteria.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from bpsflow import metrics  # noqa: E402
+from bpsflow.alignment import Aligned, align  # noqa: E402
+from bpsflow.config import Config  # noqa: E402
+
+TEMPERATURE_UNITS = {"C", "°C", "DEGC", "K"}
+
+
+def is_temperature(config: Config, output: str) -> bool:
+    return config.outputs[output].unit.strip().upper() in TEMPERATURE_UNITS
+
+
+def instance_scores(aligned: Aligned, temperature: bool) -> np.ndarray:
+    """Per-instance point-prediction score: nMAE (–), or MAE (°C) for temperatures."""
+    if temperature:
+        return np.mean(np.abs(aligned.ensemble - aligned.observed[:, None]), axis=0)
+    return np.asarray(metrics.instance_nmae(aligned.observed, aligned.ensemble), dtype=float)
+
+
+@dataclass
+class TestValidation:
+    """One row of the validation table, plus the score distributions behind it."""
+
+    row: dict
+    scores: np.ndarray
+    invalid_scores: np.ndarray | None
+
+
+def validate_test(config: Config, aligned: Aligned, q: float, estimator: str,
+                  invalid: Aligned | None = None) -> TestValidation:
+    temperature = is_temperature(config, aligned.output)
+    scores = instance_scores(aligned, temperature)
+    threshold = metrics.validation_threshold(scores, q)
+    mean_prediction = aligned.ensemble.mean(axis=1)
+    if temperature:
+        crps = metrics.mcrps(aligned.observed, aligned.ensemble, estimator)
+        probabilistic = {"metric": "MAE", "metric_unit": "C", "mcrps_c": float(crps),
+                         "mbe_c": metrics.mbe(aligned.observed, mean_prediction),
+                         "rmse_c": metrics.rmse(aligned.observed, mean_prediction)}
+        notes = []
+    else:
+        crps = metrics.nmcrps(aligned.observed, aligned.ensemble, estimator)
+        nmbe = metrics.nmbe(aligned.observed, mean_prediction)
+        cv = metrics.cv_rmse(aligned.observed, mean_prediction)
+        check = metrics.guideline14_check(nmbe, cv, "hourly")
+        probabilistic = {"metric": "nMAE", "metric_unit": "-", "nmcrps": float(crps),
+                         "nmbe": float(nmbe), "cv_rmse": float(cv),
+                         "guideline14_hourly": "pass" if check.passed else "fail"}
+        notes = [n for n in (crps.note, nmbe.note, cv.note) if n]
+    row = {"test": aligned.test, "output": aligned.output, "hours": len(aligned.timestamps),
+           "instances": aligned.ensemble.shape[1], "q": q,
+           "threshold": threshold, **probabilistic, "crps_estimator": estimator}
+    invalid_scores = None
+    if invalid is not None:
+        invalid_scores = instance_scores(invalid, temperature)
+        type_ii = metrics.type_ii_risk(threshold, invalid_scores)
+        row.update({"invalid_instances": invalid.ensemble.shape[1],
+                    "invalid_quantile": metrics.validation_threshold(invalid_scores, q),
+                    "type_ii_risk": type_ii, "reduced_risk": metrics.reduced_risk(q, type_ii)})
+    row["notes"] = "; ".join(notes)
+    return TestValidation(row=row, scores=scores, invalid_scores=invalid_scores)
+
+
+def validate(config: Config, results: pd.DataFrame, measured: pd.DataFrame, q: float = 0.9,
+             estimator: str = "standard", invalid_results: pd.DataFrame | None = None,
+             measured_source: Path | str | None = None) -> list[TestValidation]:
+    """Validate every test and output of ``config`` against ``measured``."""
+    rows = []
+    for test in config.model.tests:
+        for output in test.outputs:
+            aligned = align(config, results, measured, test, output, measured_source)
+            invalid = None
+            if invalid_results is not None:
+                invalid = align(config, invalid_results, measured, test, output, measured_source)
+            rows.append(validate_test(config, aligned, q, estimator, invalid))
+    return rows
+
+
+def write_outputs(validations: list[TestValidation], out_dir: Path, q: float) -> dict[str, Path]:
+    """``validation.json``, ``validation.csv`` and the score-distribution figure."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = pd.DataFrame([v.row for v in validations])
+    csv = out_dir / "validation.csv"
+    table.to_csv(csv, index=False, float_format="%.6g")
+    payload = {"q": q, "type_i_risk": 1 - q, "tests": [
+        {**v.row, "scores": {"valid": np.round(v.scores, 8).tolist(),
+                             "invalid": None if v.invalid_scores is None
+                             else np.round(v.invalid_scores, 8).tolist()}}
+        for v in validations]}
+    path = out_dir / "validation.json"
+    path.write_text(json.dumps(payload, indent=2, default=float))
+    figure = plot_scores(validations, out_dir / "figures" / "validation_scores.png")
+    return {"json": path, "csv": csv, "figure": figure}
+
+
+def plot_scores(validations: list[TestValidation], path: Path) -> Path:
+    """Per-instance score distributions of both ensembles, with the threshold drawn."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = len(validations)
+    columns = min(3, n)
+    rows = int(np.ceil(n / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows),
+                             constrained_layout=True, squeeze=False)
+    for ax, v in zip(axes.ravel(), validations):
+        bins = np.histogram_bin_edges(np.concatenate(
+            [v.scores] + ([v.invalid_scores] if v.invalid_scores is not None else [])), 30)
+        if v.invalid_scores is not None:
+            ax.hist(v.invalid_scores, bins=bins, color="tab:red", alpha=0.5,
+                    label="invalid (baseline)")
+        ax.hist(v.scores, bins=bins, color="tab:blue", alpha=0.6, label="internal")
+        ax.axvline(v.row["threshold"], color="black", lw=1.5,
+                   label=f"threshold (q={v.row['q']:g})")
+        title = f"{v.row['test']}"
+        if "type_ii_risk" in v.row:
+            title += f"\ntype II {v.row['type_ii_risk']:.1%}, reduced {v.row['reduced_risk']:.1%}"
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel(f"{v.row['metric']} [{v.row['metric_unit']}]")
+        ax.legend(fontsize=7)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
