@@ -164,7 +164,7 @@ def apply_mode(mode: str, nominal: float, value: float) -> float:
 
 # Schedules --------------------------------------------------------------
 
-def _day_setpoints(test: Test | None) -> tuple[list[tuple[int, float]], list[tuple[int, float]]]:
+def day_setpoints(test: Test | None) -> tuple[list[tuple[int, float]], list[tuple[int, float]]]:
     """(heating, cooling) setpoint profiles of one day as ``[(until_hour, °C), ...]``."""
     if test is None or test.mode == "free_floating":
         return [(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)]
@@ -194,7 +194,7 @@ def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
         for d in range(test.days):
             by_day[start + timedelta(days=d)] = test
     days = [first + timedelta(days=d) for d in range((last - first).days + 1)]
-    profiles = [_day_setpoints(by_day.get(day)) for day in days]
+    profiles = [day_setpoints(by_day.get(day)) for day in days]
     texts = []
     for which, name in ((0, HEATING_SCHEDULE), (1, COOLING_SCHEDULE)):
         fields = [name, "Temperature"]

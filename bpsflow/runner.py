@@ -231,7 +231,7 @@ def run(config: Config, samples: pd.DataFrame, jobs: int | None = None,
     if backend == "surrogate":
         from bpsflow.surrogate import run_surrogate
 
-        return run_surrogate(config, samples, run_dir, show_progress=show_progress)
+        return run_surrogate(config, samples, run_dir, jobs=jobs, show_progress=show_progress)
     binary = find_energyplus(config.model.energyplus)
     idd = idd_path(binary)
     check_model(config, idd)

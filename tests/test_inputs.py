@@ -7,7 +7,7 @@ import pytest
 
 from bpsflow.boundary import draw_sequences, period_hours, read_boundary_file
 from bpsflow.config import load_config
-from bpsflow.instances import COOLING_OFF_C, HEATING_OFF_C, _day_setpoints, setpoint_schedules
+from bpsflow.instances import COOLING_OFF_C, HEATING_OFF_C, day_setpoints, setpoint_schedules
 from bpsflow.weather import perturb, read_epw, write_epw
 
 
@@ -54,10 +54,10 @@ def test_boundary_sequences_are_latin_hypercube_per_time_step(config):
 
 def test_setpoint_profiles_follow_the_test_mode(config):
     heating_st, free = config.model.tests
-    heat, cool = _day_setpoints(heating_st)
+    heat, cool = day_setpoints(heating_st)
     assert heat == [(8, 20.0), (18, 30.0), (24, 20.0)]
     assert cool == [(24, COOLING_OFF_C)]
-    assert _day_setpoints(free) == ([(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)])
+    assert day_setpoints(free) == ([(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)])
     heating_text, cooling_text = setpoint_schedules(config, config.model.periods[0])
     assert "Through: 12/06" in heating_text and "Until: 18:00,\n  30" in heating_text
     assert heating_text.rstrip().endswith(";") and "Through: 12/31" in heating_text

@@ -17,7 +17,7 @@ from bpsflow.surrogate.network import build_network, simulate
 from bpsflow.surrogate.params import field_values, sample_columns
 from bpsflow.surrogate.solar import double_glazing
 
-from conftest import ROOT, i600_raw, short_raw, write_config
+from conftest import ROOT, short_raw, write_config
 
 IDF = ROOT / "sample_idf" / "flexlab_x3b.idf"
 
@@ -246,3 +246,15 @@ def test_chain_elimination_equals_dense_solve(config):
     dense = simulate(cell, network, forcing, max_warmup_days=0, dense=True)
     np.testing.assert_allclose(fast.state, dense.state, atol=1e-8)
     np.testing.assert_allclose(fast.power, dense.power, rtol=1e-8, atol=1e-6)
+
+
+def test_synthetic_measurements_on_the_surrogate(tmp_path):
+    from bpsflow.synth import Truth, read_measured, synthesize
+
+    config = _two_day_config(tmp_path, summer=False)
+    path = synthesize(config, Truth(values={"ground_reflectance": 0.3}, seed=3), tmp_path / "syn",
+                      backend="surrogate")
+    measured = read_measured(path)
+    assert len(measured) == 96
+    assert set(measured.columns) >= {"heating_power_w", "zone_air_temperature_c"}
+    assert measured["zone_air_temperature_c"].between(-10, 60).all()

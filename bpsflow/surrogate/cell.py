@@ -128,7 +128,8 @@ def _curve(values: FieldValues, name: str) -> Curve:
             hi = obj.number("Maximum Value of x", 1e9)
             c1 = values.get(kind, name, "Coefficient1 Constant")
             if kind == "CURVE:LINEAR":
-                return Curve(c1, values.get(kind, name, "Coefficient2 x"), np.ones(values.n), lo, hi)
+                return Curve(c1, values.get(kind, name, "Coefficient2 x"), np.ones(values.n),
+                             lo, hi)
             return Curve(c1, values.get(kind, name, "Coefficient2 Constant"),
                          values.get(kind, name, "Coefficient3 Constant"), lo, hi)
     raise BpsflowError(f"curve '{name}' is neither a Curve:Exponent nor a Curve:Linear in the "
@@ -325,8 +326,10 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
         ventilation = ventilation + values.get(vent[0].type, obj.name, "Design Flow Rate") \
             * values.get(vent[0].type, obj.name, "Constant Term Coefficient")
     ideal = idf.of_type("ZONEHVAC:IDEALLOADSAIRSYSTEM")
-    heating_supply = ideal[0].number("Maximum Heating Supply Air Temperature", 50.0) if ideal else 50.0
-    cooling_supply = ideal[0].number("Minimum Cooling Supply Air Temperature", 13.0) if ideal else 13.0
+    heating_supply, cooling_supply = 50.0, 13.0
+    if ideal:
+        heating_supply = ideal[0].number("Maximum Heating Supply Air Temperature", 50.0)
+        cooling_supply = ideal[0].number("Minimum Cooling Supply Air Temperature", 13.0)
     months = ("January", "February", "March", "April", "May", "June", "July", "August",
               "September", "October", "November", "December")
     if idf.of_type("SITE:GROUNDREFLECTANCE"):

@@ -11,7 +11,7 @@ hourly (``Schedule:File`` without interpolation, ``Until: HH:00``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import date, datetime, timedelta
+from datetime import date, timedelta
 
 import numpy as np
 import pandas as pd
@@ -19,7 +19,7 @@ import pandas as pd
 from bpsflow.boundary import SEQUENCES_FILE, read_boundary_file, read_sequences
 from bpsflow.config import BoundaryTarget, Config, Period, Test, WeatherTarget, period_dates
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import _day_setpoints
+from bpsflow.instances import day_setpoints
 from bpsflow.surrogate.cell import Cell
 from bpsflow.surrogate.solar import beam_floor_fraction, facade_irradiance, sun_position
 from bpsflow.weather import perturb, read_epw
@@ -92,7 +92,7 @@ def _period_setpoints(config: Config, period: Period, first: date, days: int,
     hours = np.arange(24)
     heating, cooling = [], []
     for d in range(days):
-        profiles = _day_setpoints(by_day.get(first + timedelta(days=d)))
+        profiles = day_setpoints(by_day.get(first + timedelta(days=d)))
         for which, out in ((0, heating), (1, cooling)):
             day = np.empty(24)
             lower = 0

@@ -6,14 +6,18 @@ opaque surface (outside face to inside face; for boundary surfaces the
 outside face temperature is imposed), and the two glass panes (massless, as
 in EnergyPlus's window heat balance).
 
-Each step is backward Euler: ``(C/dt + K) T' = C/dt T + q`` with the
-temperature-dependent conductances (inside convection from the surface
-curves, outside convection, linearised long-wave exchange, glazing gap) taken
-from the state at the start of the step. The ideal air system adds the
-power ``Q`` on the air node that brings the mean air temperature to the
-heating (cooling) setpoint when it would otherwise fall below (rise above)
-it: the system is linear in ``Q``, so one solve with two right-hand sides
-gives both the free-floating state and its response to ``Q``.
+Each step is implicit: ``(C/dt + K) T' = C/dt T + q`` (backward Euler for
+the walls; the air node uses EnergyPlus's default third-order backward
+difference) with the temperature-dependent conductances (inside convection
+from the surface curves, outside convection, linearised long-wave exchange,
+glazing gap) taken from the state at the start of the step. Every wall and
+the glazing is a chain that touches only the air and star nodes, so each
+step eliminates the chains onto those two hubs (a tridiagonal sweep per
+chain, vectorised over instances), solves 2x2 and back-substitutes. The
+ideal air system adds the power ``Q`` on the air node that brings the mean
+air temperature to the heating (cooling) setpoint when it would otherwise
+fall below (rise above) it: the system is linear in ``Q``, so the free state
+and its response to ``Q`` come from the same elimination.
 
 Room air stratification (ConstantGradient): the air next to a surface is
 ``T_mean + gradient * dz`` (``dz`` the surface centroid height above the
@@ -143,7 +147,8 @@ def build_network(cell: Cell) -> Network:
                    static=static.reshape(n, -1), diag_nodes=diag_nodes,
                    inside=inside, outside=outside, boundary_node=boundary_node,
                    boundary_g=boundary_g, pane_out=pane_out, pane_in=pane_in, pairs=pairs,
-                   off_columns=np.array([i * size + j for i, j in pairs] + [j * size + i for i, j in pairs]),
+                   off_columns=np.array([i * size + j for i, j in pairs]
+                                        + [j * size + i for i, j in pairs]),
                    off_pairs=np.array(list(range(len(pairs))) * 2),
                    static_diagonal=static[:, np.arange(size), np.arange(size)].copy(),
                    chains=chains)
@@ -213,7 +218,8 @@ def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
 class _Stepper:
     def __init__(self, cell: Cell, network: Network, forcing: PeriodForcing, dt: float,
                  account: bool, air_order: int = 3, dense: bool = False):
-        self.cell, self.net, self.forcing, self.dt, self.account = cell, network, forcing, dt, account
+        self.cell, self.net, self.forcing = cell, network, forcing
+        self.dt, self.account = dt, account
         n = network.n
         self.opaque_areas = np.array([s.area for s in cell.opaque] + [cell.window.area])
         self.area_total = self.opaque_areas.sum()

@@ -22,7 +22,7 @@ from bpsflow.surrogate.network import build_network, reported_power, simulate
 from bpsflow.surrogate.params import field_values, sample_columns
 
 #: Weather quantities the surrogate has no physics for.
-WEATHER_IGNORED = {"wind_direction": "wind direction (the exterior convection uses wind speed only)"}
+WEATHER_IGNORED = {"wind_direction": "the exterior convection uses wind speed only"}
 
 #: EnergyPlus output variables the surrogate computes (upper-case name).
 SUPPORTED_OUTPUTS = (
@@ -85,6 +85,8 @@ def simulate_instances(config: Config, samples: pd.DataFrame, run_dir: Path | No
     extra = _Extra(values, wants_tstat)
     network = build_network(cell)
     tph = config.model.timesteps_per_hour
+    integer = all(isinstance(label, (int, np.integer)) for label in labels)
+    label_array = np.asarray(labels, dtype=np.int64 if integer else object)
     frames = []
     for period in config.model.periods:
         tests = config.tests_in(period.name)
@@ -108,13 +110,11 @@ def simulate_instances(config: Config, samples: pd.DataFrame, run_dir: Path | No
                                  hourly["cooling"], extra)[:, begin:end] * spec.scale
                 count = end - begin
                 frames.append(pd.DataFrame({
-                    "instance": np.repeat(np.asarray(labels, dtype=object), count),
+                    "instance": np.repeat(label_array, count),
                     "test": test.name, "output": output,
                     "timestamp": np.tile(stamps[begin:end].to_numpy(), len(labels)),
                     "value": data.reshape(-1)}))
     tidy = pd.concat(frames, ignore_index=True)
-    if all(isinstance(label, (int, np.integer)) for label in labels):
-        tidy["instance"] = tidy["instance"].astype("int64")
     return tidy, ignored_targets(config, values)
 
 
@@ -149,7 +149,7 @@ def simulate_tidy(config: Config, samples_frame: pd.DataFrame) -> pd.DataFrame:
     return tidy
 
 
-def _run_chunk(config: Config, chunk: pd.DataFrame, run_dir: Path):
+def _run_chunk(config: Config, chunk: pd.DataFrame, run_dir: Path, number: int):
     started = time.perf_counter()
     try:
         tidy, _ = simulate_instances(config, chunk, run_dir)
@@ -158,7 +158,7 @@ def _run_chunk(config: Config, chunk: pd.DataFrame, run_dir: Path):
         raise
     except Exception as exc:  # recorded per instance, the run goes on
         tidy, error = None, f"{type(exc).__name__}: {exc}"
-    return list(chunk.index), tidy, error, time.perf_counter() - started
+    return number, list(chunk.index), tidy, error, time.perf_counter() - started
 
 
 def run_surrogate(config: Config, samples: pd.DataFrame, run_dir: Path,
@@ -185,22 +185,21 @@ def run_surrogate(config: Config, samples: pd.DataFrame, run_dir: Path,
     console.print(f"running {total} instance(s) on the surrogate model with {jobs} job(s) "
                   f"({len(chunks)} chunk(s))")
     records: dict = {}
-    frames = []
+    frames: dict[int, pd.DataFrame] = {}
     failed = 0
     columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("[red]{task.fields[failed]} failed"), TimeElapsedColumn(),
                TextColumn("ETA"), TimeRemainingColumn()]
     with Progress(*columns, console=console, disable=not show_progress or not total) as progress:
         task = progress.add_task("surrogate", total=total, failed=0)
-        tasks = (delayed(_run_chunk)(config, chunk, run_dir) for chunk in chunks)
-        for labels, tidy, error, seconds in Parallel(n_jobs=jobs, return_as="generator_unordered",
-                                                     batch_size=1)(tasks):
+        tasks = (delayed(_run_chunk)(config, chunk, run_dir, k) for k, chunk in enumerate(chunks))
+        for k, labels, tidy, error, seconds in Parallel(n_jobs=jobs, batch_size=1,
+                                                        return_as="generator_unordered")(tasks):
             per = seconds / max(len(labels), 1)
             bad = set()
             if tidy is not None:
-                finite = tidy.groupby("instance")["value"].apply(lambda v: bool(np.isfinite(v).all()))
-                bad = {i for i, ok in finite.items() if not ok}
-                frames.append(tidy[~tidy["instance"].isin(bad)])
+                bad = set(tidy.loc[~np.isfinite(tidy["value"].to_numpy()), "instance"])
+                frames[k] = tidy[~tidy["instance"].isin(bad)] if bad else tidy
             for label in labels:
                 status_error = error or ("non-finite outputs" if label in bad else "")
                 records[label] = InstanceRecord(
@@ -208,15 +207,17 @@ def run_surrogate(config: Config, samples: pd.DataFrame, run_dir: Path,
                     simulate_seconds=per, error=status_error, backend="surrogate")
                 failed += bool(status_error)
             progress.update(task, advance=len(labels), failed=failed)
-    results = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=RESULT_COLUMNS)
-    results = results.sort_values(["instance", "test", "output", "timestamp"], kind="stable")
-    results = results[RESULT_COLUMNS].reset_index(drop=True)
+    results = pd.concat([frames[k] for k in sorted(frames)], ignore_index=True) if frames \
+        else pd.DataFrame(columns=RESULT_COLUMNS)
+    results = results[RESULT_COLUMNS]
     temporary = run_dir / (RESULTS_FILE + ".tmp")
     results.to_parquet(temporary, index=False)
     temporary.replace(run_dir / RESULTS_FILE)
-    manifest = pd.DataFrame([r.__dict__ for r in records.values()]).sort_values("instance")
+    manifest = pd.DataFrame([r.__dict__ for r in records.values()],
+                            columns=list(InstanceRecord.__dataclass_fields__))
+    manifest = manifest.sort_values("instance").reset_index(drop=True)
     temporary = run_dir / (MANIFEST_FILE + ".tmp")
-    manifest.reset_index(drop=True).to_parquet(temporary, index=False)
+    manifest.to_parquet(temporary, index=False)
     temporary.replace(run_dir / MANIFEST_FILE)
     ok = total - failed
     return RunSummary(backend="surrogate", total=total, ran=total, skipped=0, ok=ok,
