@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed
 JOBS   ?= 2
 DEMO_SAMPLES ?= 200
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test bench study study-energyplus clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,9 +32,30 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 bench: $(STAMP)
-	$(PY) bench/run_throughput.py --jobs $(JOBS)
-	@if [ -f bench/surrogate_bench.py ]; then $(PY) bench/surrogate_bench.py; fi
+	$(PY) bench/run_throughput.py --instances 200 --jobs $(JOBS)
+	$(PY) bench/surrogate_bench.py
+	$(PY) -m pip install --quiet scoringrules   # reference CRPS, for the benchmark only
+	$(PY) bench/metrics_bench.py
 	@echo "figures written to bench/results.json"
+
+# The Table 3.5-style validation study (seed §3.6): baseline and refined ensembles
+# against the synthetic measurements of the truth instance.
+# `make study` runs it on the surrogate (seconds); `make study-energyplus` on EnergyPlus.
+STUDY_SAMPLES ?= 2000
+study: $(STAMP)
+	$(MAKE) _study BACKEND=surrogate SUFFIX=_surrogate STUDY_SAMPLES=$(STUDY_SAMPLES)
+
+study-energyplus: $(STAMP)
+	$(MAKE) _study BACKEND=energyplus SUFFIX=_energyplus STUDY_SAMPLES=$(STUDY_SAMPLES)
+
+_study:
+	$(BPS) sample configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --samples $(STUDY_SAMPLES) --force
+	$(BPS) synth configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --truth configs/i600_truth.yaml --backend $(BACKEND)
+	$(BPS) run configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --backend $(BACKEND) --jobs $(JOBS) --no-progress
+	$(BPS) sample configs/i600_refined.yaml --run-dir runs/study$(SUFFIX)/refined --samples $(STUDY_SAMPLES) --force
+	$(BPS) run configs/i600_refined.yaml --run-dir runs/study$(SUFFIX)/refined --backend $(BACKEND) --jobs $(JOBS) --no-progress
+	$(BPS) validate configs/i600_refined.yaml --run-dir runs/study$(SUFFIX)/refined --measured runs/study$(SUFFIX)/baseline/truth/measured.csv --invalid runs/study$(SUFFIX)/baseline
+	@echo "table: runs/study$(SUFFIX)/refined/validation.csv; figures: runs/study$(SUFFIX)/refined/figures/"
 
 clean:
 	rm -rf runs bench/work .pytest_cache
