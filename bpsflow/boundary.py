@@ -116,21 +116,6 @@ def read_sequences(path: Path) -> BoundarySequences:
                                  hours=data["hours"], values=data["values"])
 
 
-def instance_boundary_table(boundary: Boundary, sequences: BoundarySequences | None,
-                            selection: dict[str, int]) -> pd.DataFrame:
-    """The boundary file with the selected sequence of each sampled surface substituted.
-
-    ``selection`` maps a surface to its sequence index; surfaces not in it keep
-    the measured values.
-    """
-    columns = tuple(boundary.surfaces[s].column for s in boundary.surfaces)
-    table = read_boundary_file(boundary.file, columns).copy()
-    for surface, index in selection.items():
-        column = table.columns.get_loc(boundary.surfaces[surface].column)
-        table.iloc[sequences.hours, column] = sequences.sequence(surface, index)
-    return table
-
-
 @lru_cache(maxsize=4)
 def _boundary_lines(path: Path, columns: tuple[str, ...]) -> tuple[str, tuple[str, ...]]:
     table = read_boundary_file(path, columns)

@@ -19,7 +19,6 @@ from datetime import date, timedelta
 from functools import lru_cache
 from pathlib import Path
 
-import numpy as np
 
 from bpsflow.boundary import SEQUENCES_FILE, period_hours, read_sequences, write_boundary_file
 from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Parameter, Period, Test,
@@ -265,9 +264,12 @@ class Template:
 _TEMPLATES: dict[tuple[str, str, str], Template] = {}
 
 
-def _template(config: Config, period_name: str, idd: str) -> Template:
-    """The per-process template of a period (parsed once per worker process)."""
-    key = (config.model_dump_json(), period_name, idd)
+def _template(config: Config, period_name: str, idd: str, config_key: str) -> Template:
+    """The per-process template of a period (parsed once per worker process).
+
+    ``config_key`` identifies the config (its JSON); computed once per instance.
+    """
+    key = (config_key, period_name, idd)
     if key not in _TEMPLATES:
         if len(_TEMPLATES) > 8:
             _TEMPLATES.clear()
@@ -351,7 +353,8 @@ def write_instance(config: Config, sample: dict[str, float], directory: Path,
         The Energy+.idd matching the model's version.
     """
     directory.mkdir(parents=True, exist_ok=True)
-    first = _template(config, config.model.periods[0].name, str(idd))
+    config_key = config.model_dump_json()
+    first = _template(config, config.model.periods[0].name, str(idd), config_key)
     weather_errors = {
         quantity: (config.parameter(name).mode, float(sample[name]))
         for name, quantities in first.targets.weather.items() for quantity in quantities
@@ -371,7 +374,7 @@ def write_instance(config: Config, sample: dict[str, float], directory: Path,
                                             directory / BOUNDARY_NAME)
     idfs = {}
     for period in config.model.periods:
-        template = _template(config, period.name, str(idd))
+        template = _template(config, period.name, str(idd), config_key)
         period_dir = directory / period.name
         period_dir.mkdir(exist_ok=True)
         idfs[period.name] = _write_period_idf(config, template, sample, boundary_path,
@@ -402,13 +405,3 @@ def check_model(config: Config, idd: Path) -> ResolvedTargets:
     """Parse the model and check every target before anything runs (no files written)."""
     template = build_template(config, config.model.periods[0], idd)
     return template.targets
-
-
-def nominal_values(config: Config, idd: Path) -> dict[str, float]:
-    """The model's own value of each parameter's first IDF target (for reports)."""
-    template = build_template(config, config.model.periods[0], idd)
-    values: dict[str, float] = {}
-    for slot in template.slots:
-        for name in slot.parameters:
-            values.setdefault(name, np.nan if slot.nominal is None else slot.nominal)
-    return values

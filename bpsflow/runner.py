@@ -34,7 +34,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
 from bpsflow.config import Config, test_dates
 from bpsflow.energyplus import find_energyplus, idd_path, read_hourly, run_energyplus
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import IDF_NAME, check_model, write_instance
+from bpsflow.instances import check_model, write_instance
 
 MANIFEST_FILE = "manifest.parquet"
 RESULTS_FILE = "results.parquet"
@@ -276,7 +276,8 @@ def run(config: Config, samples: pd.DataFrame, jobs: int | None = None,
     finally:
         _write_manifest(run_dir, records)
         collect_results(run_dir, sorted(int(i) for i in samples.index))
-    ok = sum(r.status == "ok" for i, r in records.items() if i in set(samples.index))
+    wanted = {int(i) for i in samples.index}
+    ok = sum(r.status == "ok" for i, r in records.items() if i in wanted)
     return RunSummary(backend="energyplus", total=len(samples), ran=len(todo),
                       skipped=len(samples) - len(todo), ok=ok, failed=len(samples) - ok,
                       seconds=time.perf_counter() - started)

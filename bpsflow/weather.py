@@ -13,7 +13,6 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from bpsflow.errors import BpsflowError
 
@@ -84,17 +83,6 @@ def _is_number(text: str) -> bool:
     except ValueError:
         return False
     return True
-
-
-def read_epw_frame(path: Path, year: int) -> pd.DataFrame:
-    """The touched EPW columns as a DataFrame indexed by hour-ending timestamps in ``year``."""
-    epw = read_epw(Path(path))
-    months = np.array([int(row[1]) for row in epw.rows])
-    days = np.array([int(row[2]) for row in epw.rows])
-    hours = np.array([int(row[3]) for row in epw.rows])
-    index = pd.to_datetime(pd.DataFrame({"year": year, "month": months, "day": days})) \
-        + pd.to_timedelta(hours, unit="h")
-    return pd.DataFrame(epw.columns, index=pd.DatetimeIndex(index, name="timestamp"))
 
 
 def _relative_humidity_pct(dry_bulb_c: np.ndarray, dew_point_c: np.ndarray) -> np.ndarray:
