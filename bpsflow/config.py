@@ -32,7 +32,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError,
                       field_validator, model_validator)
 
-from bpsflow.distributions import Distribution, Empirical, Sampler
+from bpsflow.distributions import Constant, Distribution, Empirical, Sampler
 from bpsflow.errors import BpsflowError
 
 _NAME = r"^[A-Za-z_][A-Za-z0-9_.\-]*$"
@@ -98,6 +98,9 @@ class Parameter(_Strict):
     targets: list[Target] = Field(min_length=1)
     group: str = "other"
     description: str = ""
+    provenance: dict[str, Any] | None = None
+    """Where a derived distribution came from (e.g. ``bpsflow refine``: method,
+    source file, estimates); free-form, carried through to written configs."""
 
     @model_validator(mode="after")
     def _check(self) -> "Parameter":
@@ -105,8 +108,9 @@ class Parameter(_Strict):
         if BoundaryTarget in kinds:
             if kinds != {BoundaryTarget}:
                 raise ValueError("a boundary sampler cannot also target IDF fields or weather")
-            if not isinstance(self.distribution, Sampler):
-                raise ValueError("a 'boundary' target needs distribution type 'sampler'")
+            if not isinstance(self.distribution, (Sampler, Constant)):
+                raise ValueError("a 'boundary' target needs distribution type 'sampler' "
+                                 "(or 'constant' for a fixed sequence index)")
         elif isinstance(self.distribution, Sampler):
             raise ValueError("distribution type 'sampler' only selects boundary sequences "
                              "(targets of the form {boundary: NAME})")

@@ -249,7 +249,24 @@ class Sampler(_Distribution):
         return np.clip(index, 0, self.sequences - 1)
 
 
+class Constant(_Distribution):
+    """A parameter held fixed at ``value`` (e.g. screened out by Morris, seed §3.4.8).
+
+    Every draw returns ``value``; a constant parameter keeps its targets and its
+    place in the design, so a reduced config still writes the same fields.
+    """
+
+    type: Literal["constant"]
+    value: float
+
+    def scipy(self):
+        return stats.rv_discrete(values=([self.value], [1.0]))
+
+    def ppf(self, u: np.ndarray) -> np.ndarray:
+        return np.full(np.shape(u), self.value, dtype=float)
+
+
 Distribution = Annotated[
-    Union[Uniform, Normal, Beta, LogNormal, Triangular, Discrete, Empirical, Sampler],
+    Union[Uniform, Normal, Beta, LogNormal, Triangular, Discrete, Empirical, Sampler, Constant],
     Field(discriminator="type"),
 ]
