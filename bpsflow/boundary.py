@@ -1,7 +1,9 @@
 """Boundary-temperature sequences for surfaces next to measured spaces (seed §3.4.5).
 
 The measured (area-weighted, eq. 13) temperature of each boundary surface has
-a random error of standard deviation ``sensor_std_c``. A Monte Carlo set of
+a random error of standard deviation ``sensor_std_c`` (the surface's own value
+when it has one, e.g. from ``bpsflow refine``; else the boundary-level value).
+A Monte Carlo set of
 ``sequences`` sequences per surface is drawn *independently at each time step*
 with a Latin hypercube (stratified over the sequences), and a U(0,1) sampler
 per surface selects the sequence one instance uses. The sequences cover the
@@ -69,12 +71,20 @@ class BoundarySequences:
         return self.values[self.surfaces.index(surface), int(index)]
 
 
+def surface_std_c(boundary: Boundary, surface: str) -> float:
+    """Measurement standard deviation (°C) of one boundary surface's temperature."""
+    own = boundary.surfaces[surface].sensor_std_c
+    return boundary.sensor_std_c if own is None else own
+
+
 def draw_sequences(boundary: Boundary, hours: np.ndarray) -> BoundarySequences:
     """Draw the Monte Carlo boundary sequences (LHS over sequences at each time step).
 
     For surface ``s`` and hour ``t`` the ``N`` values are
-    ``T_meas(t) + sensor_std_c * Phi^-1((pi_t(j) + U_j) / N)``, ``pi_t`` a random
+    ``T_meas(t) + sigma_s * Phi^-1((pi_t(j) + U_j) / N)``, ``pi_t`` a random
     permutation: an independent Latin hypercube per time step (seed §3.4.5).
+    ``sigma_s`` (°C) is the surface's ``sensor_std_c`` if set, else the
+    boundary's.
     """
     surfaces = tuple(boundary.surfaces)
     columns = tuple(boundary.surfaces[s].column for s in surfaces)
@@ -83,9 +93,9 @@ def draw_sequences(boundary: Boundary, hours: np.ndarray) -> BoundarySequences:
     n = boundary.sequences
     strata = rng.permuted(np.broadcast_to(np.arange(n)[:, None], (n, len(hours))), axis=0)
     values = np.empty((len(surfaces), n, len(hours)), dtype=np.float32)
-    for s in range(len(surfaces)):
+    for s, surface in enumerate(surfaces):
         u = (rng.permuted(strata, axis=0) + rng.random((n, len(hours)))) / n
-        values[s] = measured[:, s][None, :] + boundary.sensor_std_c * stats.norm.ppf(u)
+        values[s] = measured[:, s][None, :] + surface_std_c(boundary, surface) * stats.norm.ppf(u)
     return BoundarySequences(surfaces=surfaces, hours=hours, values=values)
 
 

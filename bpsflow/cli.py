@@ -202,7 +202,10 @@ def synth(config: Path = ConfigArg,
           truth: Path = typer.Option(..., help="YAML with the true parameter values and noise."),
           out: Optional[Path] = typer.Option(None, help="Output folder (default RUN_DIR/truth)."),
           run_dir: Optional[Path] = RunDirOption,
-          backend: Optional[str] = typer.Option(None, help="Override model.backend.")) -> None:
+          backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+          detailed: bool = typer.Option(False, "--detailed", help="Also write detailed "
+                                        "measurements (detailed.csv, sensor_calibration.csv, "
+                                        "detailed.json; seed §3.4.3-3.5).")) -> None:
     """Run a truth instance and write synthetic measurements (measured.csv)."""
     from bpsflow.synth import load_truth, synthesize
 
@@ -211,8 +214,13 @@ def synth(config: Path = ConfigArg,
         cfg.model.backend = backend
     spec = load_truth(truth, cfg)
     out = out or cfg.run_dir.resolve() / "truth"
-    path = synthesize(cfg, spec, out.resolve())
+    path = synthesize(cfg, spec, out.resolve(), detailed=detailed)
     console.print(f"wrote {path}")
+    if detailed:
+        from bpsflow.detailed import CALIBRATION_FILE, DETAILED_FILE, METADATA_FILE
+
+        names = (DETAILED_FILE, CALIBRATION_FILE, METADATA_FILE)
+        console.print("wrote " + ", ".join(str(path.parent / name) for name in names))
 
 
 @app.command()
@@ -266,6 +274,160 @@ def validate(config: Path = ConfigArg,
         if v.row["notes"]:
             console.print(f"[yellow]{v.row['test']}: {v.row['notes']}[/yellow]")
     console.print(f"wrote {paths['json']}, {paths['csv']}, {paths['figure']}")
+
+
+@app.command()
+@_friendly
+def sensitivity(
+        config: Path = ConfigArg,
+        measured: Optional[Path] = typer.Option(
+            None, help="Measured data (timestamp + output columns); needed by --response "
+                       "difference|absolute."),
+        response: Optional[str] = typer.Option(
+            None, help="difference (prediction - measurement, the source's response; default "
+                       "with --measured), absolute (|prediction - measurement|) or raw (the "
+                       "prediction; default without --measured), each averaged over a test's "
+                       "evaluated days."),
+        top: int = typer.Option(20, help="Inputs shown per response (ranked by mu*)."),
+        trajectories: Optional[int] = typer.Option(None, help="Override design.trajectories."),
+        levels: Optional[int] = typer.Option(None, help="Override design.levels (even)."),
+        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
+        backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+        groups: bool = typer.Option(False, "--groups", help="Also print mu* summed per "
+                                                           "parameter group."),
+        screen: Optional[int] = typer.Option(None, help="Write a reduced config keeping the top "
+                                             "N inputs of each response, the others fixed."),
+        screen_out: Optional[Path] = typer.Option(None, help="Where --screen writes (default "
+                                                  "<config stem>_screened.yaml beside CONFIG)."),
+        run_dir: Optional[Path] = RunDirOption,
+        no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
+    """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
+    from bpsflow import sensitivity as morris
+    from bpsflow.runner import choose_backend, read_results, run as run_all
+    from bpsflow.synth import read_measured
+
+    cfg = _load(config, run_dir)
+    kind = response or ("difference" if measured else "raw")
+    if kind not in morris.RESPONSE_KINDS:
+        raise BpsflowError(f"--response: expected one of {', '.join(morris.RESPONSE_KINDS)}, "
+                           f"got '{kind}'")
+    if kind != "raw" and measured is None:
+        raise BpsflowError(f"--response {kind} compares predictions with measurements: give "
+                           f"--measured FILE (or use --response raw)")
+    if top < 1:
+        raise BpsflowError(f"--top: expected a number of inputs ≥ 1, got {top}")
+    if screen is not None and screen < 1:
+        raise BpsflowError(f"--screen: expected a number of inputs to keep per response ≥ 1, "
+                           f"got {screen}")
+    if screen_out is not None and screen is None:
+        raise BpsflowError("--screen-out needs --screen N (how many inputs to keep per response)")
+    if backend is not None:
+        if backend not in ("energyplus", "surrogate", "auto"):
+            raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got '{backend}'")
+        cfg.model.backend = backend
+    mcfg = morris.morris_config(cfg, trajectories, levels)
+    observed = read_measured(measured) if measured else None
+    if observed is not None:
+        morris.check_measured(mcfg, observed, measured)
+    chosen = choose_backend(mcfg, announce=err_console.print)
+    samples = morris.prepare_morris(mcfg, chosen, announce=err_console.print)
+    md = mcfg.run_dir.resolve()
+    varied = morris.varied_parameters(mcfg)
+    k = len(varied)
+    fixed = len(mcfg.parameters) - k
+    err_console.print(f"Morris design: {mcfg.design.trajectories} trajectories × ({k} + 1) = "
+                      f"{len(samples)} runs, {mcfg.design.levels} levels"
+                      + (f"; {fixed} constant parameter(s) not stepped" if fixed else ""))
+    summary = run_all(mcfg, samples, jobs=jobs, show_progress=not no_progress, backend=chosen)
+    if summary.ok == 0:
+        from bpsflow.runner import read_manifest
+
+        errors = read_manifest(md)["error"]
+        first = next((e for e in errors if e), "no error recorded")
+        raise BpsflowError(f"all {summary.total} Morris runs failed (first error: {first}); "
+                           f"see {md / 'manifest.parquet'}")
+    results = read_results(md)
+    responses = morris.window_responses(mcfg, results, observed, kind, measured)
+    unit = morris.read_unit_design(md)
+    indices = morris.morris_indices(varied, unit[[p.name for p in varied]].to_numpy(),
+                                    responses.reindex(unit.index), mcfg.design.levels,
+                                    seed=mcfg.design.seed)
+    group_table = morris.group_summary(indices)
+    paths = morris.write_tables(indices, group_table, md)
+    figures = morris.plot_all(mcfg, indices, md / "figures", label_top=min(top, 10))
+    for name, frame in indices.groupby("response", sort=False):
+        output_unit = mcfg.outputs[name.split(":", 1)[1]].unit
+        used = int(frame["trajectories"].iloc[0])
+        table = Table(title=f"{name}: Morris, {kind} response [{output_unit}], top {top} by mu* "
+                            f"({used} trajectories)")
+        for column in ("rank", "parameter", "group", "mu*", "mu*_conf", "mu", "sigma"):
+            table.add_column(column, justify="left" if column in ("parameter", "group")
+                             else "right", overflow="fold")
+        for row in frame.nsmallest(top, "rank").itertuples():
+            table.add_row(str(row.rank), row.parameter, row.group, f"{row.mu_star:.3g}",
+                          f"{row.mu_star_conf:.2g}", f"{row.mu:.3g}", f"{row.sigma:.3g}")
+        console.print(table)
+    if groups:
+        table = Table(title="mu* per parameter group")
+        for column in ("response", "group", "sum mu*", "max mu*", "top parameter", "count"):
+            table.add_column(column, justify="right" if "mu*" in column or column == "count"
+                             else "left", overflow="fold")
+        for row in group_table.itertuples():
+            table.add_row(row.response, row.group, f"{row.mu_star_sum:.3g}",
+                          f"{row.mu_star_max:.3g}", row.top_parameter, str(row.count))
+        console.print(table)
+    console.print(f"{summary.ok}/{summary.total} runs ok ({summary.backend}); wrote "
+                  f"{paths['indices']}, {paths['groups']}, {len(figures)} figure(s) in "
+                  f"{md / 'figures'}")
+    if summary.failed:
+        console.print(f"[yellow]{summary.failed} run(s) failed: their trajectories are left out "
+                      f"(see {md / 'manifest.parquet'})[/yellow]")
+    if screen is not None:
+        path, kept, fixed_names = morris.write_screened_config(cfg, indices, screen, screen_out,
+                                                               paths["indices"])
+        console.print(f"wrote {path}: keeps {len(kept)} input(s) (the top {screen} of each "
+                      f"response), fixes {len(fixed_names)} at their nominal value")
+
+
+@app.command()
+@_friendly
+def refine(config: Path = ConfigArg,
+           detailed: Path = typer.Option(..., help="detailed.csv (or its folder), with "
+                                         "sensor_calibration.csv and detailed.json beside it."),
+           out: Optional[Path] = typer.Option(None, help="Output folder (default RUN_DIR/refine)."),
+           refined_config: Optional[Path] = typer.Option(
+               None, "--refined-config", help="Where to write the refined config (default "
+                                              "OUT/refined.yaml); its data files go beside it."),
+           run_dir: Optional[Path] = RunDirOption) -> None:
+    """Refine input distributions from detailed measurements (seed §3.4.3-3.5)."""
+    from bpsflow.refine import interval_table, refine as run_refine, write_refinement
+
+    cfg = _load(config, run_dir)
+    out = (out or cfg.run_dir.resolve() / "refine").resolve()
+    refinement = run_refine(cfg, detailed)
+    paths = write_refinement(refinement, out, refined_config)
+    table = Table(title=f"{cfg.name}: refined inputs, 90 % intervals (seed §3.5)")
+    for column in ("parameter", "mode", "baseline", "refined", "width ratio"):
+        table.add_column(column, justify="right" if column == "width ratio" else "left",
+                         overflow="fold")
+    for row in interval_table(refinement).itertuples():
+        table.add_row(row.parameter, row.mode, f"[{row.before_low:.4g}, {row.before_high:.4g}]",
+                      f"[{row.after_low:.4g}, {row.after_high:.4g}]", f"{row.width_ratio:.3f}")
+    console.print(table)
+    for surface in refinement.boundary:
+        console.print(f"boundary {surface.surface}: {len(surface.rows)} hours replaced, "
+                      f"sensor_std_c {surface.sensor_std_c:.4g} C (eq. 13)")
+    glazing = refinement.glazing
+    if glazing.get("single_pane_estimate") is not None and "bias_single_pane" in glazing:
+        console.print(f"glazing (not refined, seed §3.5.5): single-pane estimate "
+                      f"{glazing['single_pane_estimate']:.4f} vs normal-incidence "
+                      f"{glazing['normal_incidence_single_pane_nominal']:.4f} "
+                      f"({glazing['relative_bias_single_pane']:+.1%}; off-normal and diffuse "
+                      f"light transmit less)")
+    for message in refinement.skipped + refinement.notes:
+        console.print(f"[yellow]{message}[/yellow]", highlight=False)
+    console.print(f"wrote {paths['config']}, {paths['json']}, {paths['convection_csv']} and "
+                  f"figures in {out / 'figures'}")
 
 
 def main() -> None:  # pragma: no cover

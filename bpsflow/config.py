@@ -32,6 +32,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError,
                       field_validator, model_validator)
 
+from bpsflow.calibration.settings import CalibrationSettings
 from bpsflow.distributions import Constant, Distribution, Empirical, Sampler
 from bpsflow.errors import BpsflowError
 
@@ -167,10 +168,16 @@ class Test(_Strict):
 
 
 class BoundarySurface(_Strict):
-    """A boundary surface: the Schedule:File object it feeds and its column in the data file."""
+    """A boundary surface: the Schedule:File object it feeds and its column in the data file.
+
+    ``sensor_std_c`` (optional) is this surface's measurement standard deviation
+    in °C (e.g. from ``bpsflow refine``, seed eq. 13); when absent the
+    boundary-level ``sensor_std_c`` applies.
+    """
 
     schedule: str
     column: str
+    sensor_std_c: float | None = Field(default=None, gt=0)
 
 
 class Boundary(_Strict):
@@ -238,6 +245,7 @@ class Config(_Strict):
     outputs: dict[str, OutputVariable] = Field(min_length=1)
     execution: Execution = Field(default_factory=Execution)
     validation: ValidationSettings = Field(default_factory=ValidationSettings)
+    calibration: CalibrationSettings | None = None
     #: Where the config came from (set by :func:`load_config`).
     source: Path | None = Field(default=None, exclude=True)
 
@@ -270,7 +278,15 @@ class Config(_Strict):
                     if target.boundary not in surfaces:
                         raise ValueError(f"{where}: unknown boundary surface '{target.boundary}', "
                                          f"expected one of {sorted(surfaces)} (model.boundary.surfaces)")
-                    if parameter.distribution.sequences != self.model.boundary.sequences:
+                    if isinstance(parameter.distribution, Constant):
+                        index = parameter.distribution.value
+                        if not (float(index).is_integer()
+                                and 0 <= index < self.model.boundary.sequences):
+                            raise ValueError(
+                                f"parameters[{i}] ({parameter.name}).distribution.value: a fixed "
+                                f"boundary sampler is a sequence index, expected an integer in "
+                                f"0..{self.model.boundary.sequences - 1}, got {index}")
+                    elif parameter.distribution.sequences != self.model.boundary.sequences:
                         raise ValueError(
                             f"parameters[{i}] ({parameter.name}).distribution.sequences: "
                             f"{parameter.distribution.sequences} but model.boundary.sequences is "

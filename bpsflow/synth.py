@@ -7,7 +7,10 @@ bounds follow seed Table 3.3 and are read as three standard deviations
 deviation"): room temperature ±0.001 °C, heating/cooling power ±0.5 %.
 
 ``measured.csv`` has one row per hour-ending timestamp of every test window
-and one column per configured output.
+and one column per configured output. With ``detailed=True`` the truth
+instance also reports the detailed measurements of :mod:`bpsflow.detailed`
+(``detailed.csv``, ``sensor_calibration.csv``, ``detailed.json``, and the
+true values behind them in the ``detailed`` block of ``truth.json``).
 """
 
 from __future__ import annotations
@@ -65,10 +68,14 @@ def load_truth(path: Path, config: Config) -> Truth:
         raise BpsflowError(f"{_format_location(tuple(first['loc']), raw)}: {first['msg']}",
                            source=path) from None
     names = {p.name for p in config.parameters}
-    for name in truth.values:
+    for name, value in truth.values.items():
         if name not in names:
             raise BpsflowError(f"values.{name}: not a parameter of the config "
                                f"(expected one of {sorted(names)})", source=path)
+        sequences = getattr(config.parameter(name).distribution, "sequences", None)
+        if sequences is not None and (value != int(value) or not 0 <= value < sequences):
+            raise BpsflowError(f"values.{name}: {value:g} is not a sequence index of its sampler "
+                               f"(expected an integer 0..{sequences - 1})", source=path)
     for name in truth.noise:
         if name not in config.outputs:
             raise BpsflowError(f"noise.{name}: not an output of the config "
@@ -90,7 +97,8 @@ def add_noise(values: np.ndarray, noise: Noise, rng: np.random.Generator) -> np.
 
 
 def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Truth) -> pd.DataFrame:
-    """Wide, noisy measurements from a truth instance's tidy outputs."""
+    """Wide, noisy measurements of the config's outputs from a truth instance's tidy outputs."""
+    outputs = outputs[outputs["output"].isin(list(config.outputs))]
     wide = (outputs.drop_duplicates(["timestamp", "output"])
             .pivot(index="timestamp", columns="output", values="value").sort_index())
     rng = np.random.default_rng(truth.seed)
@@ -101,8 +109,13 @@ def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Trut
     return wide
 
 
-def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None = None) -> Path:
-    """Run the truth instance and write ``measured.csv`` and ``truth.json`` into ``out_dir``."""
+def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None = None,
+               detailed: bool = False) -> Path:
+    """Run the truth instance and write ``measured.csv`` and ``truth.json`` into ``out_dir``.
+
+    With ``detailed`` the same run also reports the detailed measurements over
+    every run period's whole span (see :func:`write_detailed_measurements`).
+    """
     from bpsflow.runner import choose_backend, run_instance
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -110,6 +123,10 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     full = config.model_copy(deep=True)
     for test in full.model.tests:
         test.outputs = every_output
+    if detailed:
+        from bpsflow.detailed import add_detailed_outputs
+
+        add_detailed_outputs(full)
     full.source = config.source
     from bpsflow.boundary import ensure_sequences
 
@@ -134,10 +151,45 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     measured = measurements_from_outputs(config, outputs, truth)
     path = out_dir / MEASURED_FILE
     measured.to_csv(path, index_label="timestamp", float_format="%.6g")
-    (out_dir / TRUTH_FILE).write_text(json.dumps(
-        {"values": sample, "noise": {k: v.model_dump() for k, v in truth.noise.items()},
-         "seed": truth.seed, "backend": backend}, indent=2))
+    record = {"values": sample, "noise": {k: v.model_dump() for k, v in truth.noise.items()},
+              "seed": truth.seed, "backend": backend}
+    if detailed:
+        record["detailed"] = write_detailed_measurements(config, sample, outputs, truth.seed,
+                                                         out_dir)
+    (out_dir / TRUTH_FILE).write_text(json.dumps(record, indent=2))
     return path
+
+
+def write_detailed_measurements(config: Config, sample: dict[str, float], outputs: pd.DataFrame,
+                                seed: int, out_dir: Path) -> dict:
+    """Turn the truth instance's detailed outputs into sensor readings (seed §3.4.3–3.5).
+
+    Writes ``detailed.csv``, ``sensor_calibration.csv`` and ``detailed.json``
+    into ``out_dir``. The sensor errors, the readings and the calibration
+    campaign each get their own random stream derived from the truth seed
+    (``measured.csv`` keeps the seed's own stream, so it does not change).
+
+    Returns
+    -------
+    dict
+        The true values a refinement must not read (the ``detailed`` block of
+        ``truth.json``): each temperature sensor's bias and std, per surface
+        class the true α and n of h = α|ΔT|^n, the gradient, the ground
+        reflectance, the glazing transmittance and the boundary temperatures.
+    """
+    from bpsflow import detailed as d
+
+    geometry = d.cell_geometry(config)
+    timestamps = pd.DatetimeIndex(sorted(outputs.loc[
+        outputs["output"].isin(list(d.OTHER_OUTPUTS)), "timestamp"].unique()))
+    boundary_c = d.true_boundary_temperatures(config, sample, timestamps)
+    true = d.true_detailed(outputs, boundary_c, geometry)
+    errors = d.draw_sensor_errors(true.columns, [seed, 1])
+    readings = d.sensor_readings(true, errors, [seed, 2])
+    calibration = d.calibration_campaign(errors, [seed, 3])
+    d.write_detailed(out_dir, readings, calibration, d.detailed_metadata(config, geometry,
+                                                                         calibration))
+    return d.true_values(config, sample, errors, boundary_c)
 
 
 def read_measured(path: Path) -> pd.DataFrame:

@@ -10,6 +10,7 @@ Boundary surfaces with the same construction, inside convection curve and
 height (the east, west and north walls) are lumped into one surface whose
 imposed outside temperature is their area-weighted boundary temperature:
 conduction is linear, so the lumped wall carries the sum of their heat flows.
+Each member reports the lumped wall's inside-face quantities.
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ TERRAIN = {"COUNTRY": (0.14, 270.0), "SUBURBS": (0.22, 370.0), "CITY": (0.33, 46
            "OCEAN": (0.10, 210.0), "URBAN": (0.33, 460.0)}
 #: Weather-station wind measurement: exponent, boundary layer (m), height (m).
 STATION = (0.14, 270.0, 10.0)
+#: EnergyPlus bounds a surface's non-dimensional height in the zone to this
+#: range before applying a room air temperature pattern (FigureNDheightInZone).
+ZETA_BOUNDS = (0.01, 0.99)
 
 
 @dataclass
@@ -71,6 +75,7 @@ class Opaque:
     absorptance_in: np.ndarray
     outdoor: bool
     boundary_weights: dict[str, float] = field(default_factory=dict)
+    members: list[str] = field(default_factory=list)   # IDF surfaces lumped into this one
     emissivity_out: np.ndarray | None = None
     absorptance_out: np.ndarray | None = None
     wind_factor: float = 0.0       # local / weather-file wind speed
@@ -117,6 +122,8 @@ class Cell:
     heating_supply_c: float
     cooling_supply_c: float
     ground_reflectance: np.ndarray  # (n, 12)
+    zone_name: str = ""            # the IDF zone (key of zone output variables)
+    ideal_loads_name: str = ""     # the ZoneHVAC:IdealLoadsAirSystem (key of its variables)
 
 
 def _curve(values: FieldValues, name: str) -> Curve:
@@ -188,6 +195,28 @@ def _orientation(vertices) -> tuple[float, float]:
     tilt = math.degrees(math.acos(max(-1.0, min(1.0, nz / norm))))
     azimuth = math.degrees(math.atan2(nx, ny)) % 360.0
     return tilt, azimuth
+
+
+def pattern_height(centroid_z: float, z_floor: float, height: float) -> float:
+    """Height (m) above the zone's mid-height at which a room air pattern puts a surface.
+
+    EnergyPlus's ``RoomAir:TemperaturePattern:ConstantGradient`` sets the air
+    next to a surface to ``T_mean + gradient * (zeta - 0.5) * H`` with ``zeta``
+    the surface centroid's height over the zone height ``H``, bounded to
+    :data:`ZETA_BOUNDS` (so a floor sits at ``-0.49 H``, a ceiling at
+    ``+0.49 H``, not at ``-/+ H/2``).
+
+    Parameters
+    ----------
+    centroid_z : float
+        Surface centroid height (m).
+    z_floor : float
+        Floor height of the zone (m).
+    height : float
+        Zone height (m).
+    """
+    zeta = min(max((centroid_z - z_floor) / height, ZETA_BOUNDS[0]), ZETA_BOUNDS[1])
+    return (zeta - 0.5) * height
 
 
 def wind_factor(height: float, terrain: str, speed_type: str) -> float:
@@ -270,7 +299,7 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
         inner = [v for v in construction.fields[1:] if v.strip()][-1]
         outer = construction.fields[1]
         curve_name, inside = _inside_curve(values, name)
-        dz = centroid_height(vertices) - z_floor - height / 2
+        dz = pattern_height(centroid_height(vertices), z_floor, height)
         condition = surface.get("Outside Boundary Condition").upper()
         tilt, azimuth = _orientation(vertices)
         if condition == "OUTDOORS":
@@ -279,7 +308,7 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
                 name=name, kind=kind, area=area, layers=layers, inside_curve=inside, dz=dz,
                 emissivity_in=values.get("MATERIAL", inner, "Thermal Absorptance"),
                 absorptance_in=values.get("MATERIAL", inner, "Solar Absorptance"),
-                outdoor=True,
+                outdoor=True, members=[name],
                 emissivity_out=values.get("MATERIAL", outer, "Thermal Absorptance"),
                 absorptance_out=values.get("MATERIAL", outer, "Solar Absorptance"),
                 wind_factor=wind_factor(centroid_height(vertices), terrain, speed_type),
@@ -306,6 +335,7 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
                 outdoor=False, tilt=tilt, azimuth=azimuth)
         else:
             group.name += "+" + name
+        group.members.append(name)
         group.area += area
         surface_key = schedule_to_surface[schedule]
         group.boundary_weights[surface_key] = group.boundary_weights.get(surface_key, 0.0) + area
@@ -345,7 +375,8 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
         gradient=values.get(gt, pattern, "Temperature Gradient") if pattern else np.zeros(n),
         return_offset=values.get(gt, pattern, "Return Air Offset") if pattern else np.zeros(n),
         heating_supply_c=heating_supply, cooling_supply_c=cooling_supply,
-        ground_reflectance=ground)
+        ground_reflectance=ground, zone_name=surfaces[0].get("Zone Name"),
+        ideal_loads_name=ideal[0].name if ideal else "")
 
 
 def _window(values: FieldValues, obj: IdfObject, area: float, z_floor: float, height: float,
@@ -376,7 +407,7 @@ def _window(values: FieldValues, obj: IdfObject, area: float, z_floor: float, he
                   + get(inner, "Thickness") / get(inner, "Conductivity")) / 2
     return Window(
         name=obj.name, area=area, tilt=tilt, azimuth=azimuth,
-        dz=centroid_height(vertices) - z_floor - height / 2,
+        dz=pattern_height(centroid_height(vertices), z_floor, height),
         x_range=(min(v[0] for v in vertices), max(v[0] for v in vertices)),
         z_range=(min(v[2] for v in vertices) - z_floor, max(v[2] for v in vertices) - z_floor),
         glazing=tables,

@@ -21,7 +21,9 @@ from bpsflow.config import BoundaryTarget, Config, Period, Test, WeatherTarget, 
 from bpsflow.errors import BpsflowError
 from bpsflow.instances import day_setpoints
 from bpsflow.surrogate.cell import Cell
-from bpsflow.surrogate.solar import beam_floor_fraction, facade_irradiance, sun_position
+from bpsflow.surrogate.idf import read_idf
+from bpsflow.surrogate.solar import (SHADING_DAYS, beam_floor_fraction, facade_irradiance,
+                                     sun_positions)
 from bpsflow.weather import perturb, read_epw
 
 SIGMA = 5.670374419e-8
@@ -53,6 +55,10 @@ class PeriodForcing:
     boundary: list[np.ndarray | None]  # per opaque surface of the cell: (n, S) °C
     heating_setpoint: np.ndarray  # (S,)
     cooling_setpoint: np.ndarray  # (S,)
+    #: The sun EnergyPlus takes for the beam's incidence (shading-period mean);
+    #: ``None``: the sun of the step.
+    beam_zenith: np.ndarray | None = None     # (S,) deg
+    beam_azimuth: np.ndarray | None = None    # (S,) deg
 
     @property
     def steps_per_day(self) -> int:
@@ -166,11 +172,14 @@ def period_forcing(config: Config, cell: Cell, period: Period, samples: pd.DataF
     t_sky = (_interp(infrared, temperature_pos) / SIGMA) ** 0.25 - 273.15
 
     header = epw.header[0].split(",")
-    latitude, longitude, tz, elevation = (float(header[6]), float(header[7]),
-                                          float(header[8]), float(header[9]))
+    latitude, longitude, tz = float(header[6]), float(header[7]), float(header[8])
     local_ends = pd.Timestamp(first) + pd.to_timedelta(np.arange(1, steps + 1) / tph, unit="h")
     utc = pd.DatetimeIndex(local_ends - pd.Timedelta(hours=tz)).tz_localize("UTC")
-    zenith, azimuth = sun_position(utc, latitude, longitude, elevation)
+    zenith, azimuth, beam_zenith, beam_azimuth = sun_positions(
+        pd.DatetimeIndex(local_ends), latitude, longitude, tz, shading_days(config))
+    # EnergyPlus has no sun (and no solar irradiance) in time steps whose sun
+    # is below the horizon, whatever the interpolated weather-file values say.
+    sun_up = zenith < 90.0
 
     boundary = _boundary(config, cell, samples, row0, days, tph, run_dir)
     heating, cooling = _period_setpoints(config, period, first, days, tph)
@@ -178,11 +187,25 @@ def period_forcing(config: Config, cell: Cell, period: Period, samples: pd.DataF
         period=period.name, first=first, days=days, steps_per_hour=tph, t_out=t_out,
         wind=np.clip(_interp(base["wind_speed"], temperature_pos), 0.0, None),
         t_sky=t_sky, pressure=pressure_s, humidity=humidity,
-        dni=np.clip(_interp(base["direct_normal_radiation"], solar_pos), 0.0, None),
-        dhi=np.clip(_interp(base["diffuse_horizontal_radiation"], solar_pos), 0.0, None),
+        dni=np.where(sun_up, np.clip(_interp(base["direct_normal_radiation"], solar_pos), 0.0,
+                                     None), 0.0),
+        dhi=np.where(sun_up, np.clip(_interp(base["diffuse_horizontal_radiation"], solar_pos),
+                                     0.0, None), 0.0),
         zenith=zenith, azimuth=azimuth, times_utc=utc,
         month=np.array(local_ends.month - 1), boundary=boundary,
-        heating_setpoint=heating, cooling_setpoint=cooling)
+        heating_setpoint=heating, cooling_setpoint=cooling, beam_zenith=beam_zenith,
+        beam_azimuth=beam_azimuth)
+
+
+def shading_days(config: Config) -> int | None:
+    """The model's shading-calculation update frequency (days; ``None``: every time step)."""
+    objects = read_idf(config.model.idf).of_type("SHADOWCALCULATION")
+    if not objects:
+        return SHADING_DAYS
+    shadow = objects[0]
+    if shadow.get("Shading Calculation Update Frequency Method").strip().upper() == "TIMESTEP":
+        return None
+    return max(1, int(shadow.number("Shading Calculation Update Frequency", SHADING_DAYS)))
 
 
 def _boundary(config: Config, cell: Cell, samples: pd.DataFrame, row0: int, days: int,
@@ -227,6 +250,55 @@ def _boundary(config: Config, cell: Cell, samples: pd.DataFrame, row0: int, days
     return out
 
 
+def beam_sun(forcing: PeriodForcing, steps: slice) -> tuple[np.ndarray, np.ndarray]:
+    """Zenith and azimuth (degrees) of the sun that casts the beam over ``steps``."""
+    if forcing.beam_zenith is None:
+        return forcing.zenith[steps], forcing.azimuth[steps]
+    return forcing.beam_zenith[steps], forcing.beam_azimuth[steps]
+
+
+def ground_reflected_irradiance(cell: Cell, forcing: PeriodForcing, steps: slice) -> np.ndarray:
+    """Solar irradiance reflected by the ground, ``rho_g (DNI cos Z + DHI)``; W/m², ``(n, s)``.
+
+    EnergyPlus's "Site Ground Reflected Solar Radiation Rate per Area", with
+    the month's ground reflectance of each instance.
+    """
+    cos_zenith = np.clip(np.cos(np.radians(forcing.zenith[steps])), 0.0, None)
+    ghi = forcing.dni[:, steps] * cos_zenith + forcing.dhi[:, steps]
+    return cell.ground_reflectance[:, forcing.month[steps]] * ghi
+
+
+def surface_irradiance(cell: Cell, forcing: PeriodForcing, steps: slice, tilt: float,
+                       surface_azimuth: float, ground: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Solar irradiance incident on an unshaded outside face over ``steps``.
+
+    Parameters
+    ----------
+    tilt, surface_azimuth : float
+        Orientation of the face's outward normal (degrees).
+    ground : ndarray, optional
+        :func:`ground_reflected_irradiance` over ``steps`` when already known.
+
+    Returns
+    -------
+    beam, sky, ground, cos_incidence
+        Beam and sky-diffuse irradiance (W/m², ``(M, s)``, M = 1 or n), the
+        ground-reflected irradiance the face sees, ``(1 - cos tilt) / 2`` of
+        the ground's (W/m², ``(n, s)``), and the cosine of the beam's angle of
+        incidence ``(s,)``.
+    """
+    if ground is None:
+        ground = ground_reflected_irradiance(cell, forcing, steps)
+    beam_zenith, beam_azimuth = beam_sun(forcing, steps)
+    beam, sky, cos_incidence = facade_irradiance(
+        forcing.times_utc[steps], forcing.zenith[steps], forcing.azimuth[steps],
+        forcing.dni[:, steps], forcing.dhi[:, steps], tilt, surface_azimuth,
+        beam_zenith, beam_azimuth)
+    view = (1 - np.cos(np.radians(tilt))) / 2
+    return beam, sky, view * ground, cos_incidence
+
+
 def solar_inputs(cell: Cell, forcing: PeriodForcing, steps: slice) -> dict[str, np.ndarray]:
     """Absorbed solar power (W) per receiving node group over ``steps``: ``(n, s)`` each.
 
@@ -237,22 +309,16 @@ def solar_inputs(cell: Cell, forcing: PeriodForcing, steps: slice) -> dict[str, 
     from bpsflow.surrogate.solar import angle_lookup, lookup
 
     n = cell.n
-    zenith, azimuth = forcing.zenith[steps], forcing.azimuth[steps]
-    times = forcing.times_utc[steps]
-    dni, dhi = forcing.dni[:, steps], forcing.dhi[:, steps]
-    cos_zenith = np.clip(np.cos(np.radians(zenith)), 0.0, None)
-    ghi = dni * cos_zenith + dhi
-    ground = cell.ground_reflectance[:, forcing.month[steps]] * ghi   # (n, s)
+    zenith = forcing.zenith[steps]
+    ground = ground_reflected_irradiance(cell, forcing, steps)
     cache: dict[tuple[float, float], tuple] = {}
 
     def incident(tilt, surface_azimuth):
         key = (round(tilt, 3), round(surface_azimuth, 3))
         if key not in cache:
-            beam, sky, cos_i = facade_irradiance(times, zenith, azimuth, dni, dhi, tilt,
-                                                 surface_azimuth)
-            view = (1 - np.cos(np.radians(tilt))) / 2
-            cache[key] = (np.broadcast_to(beam, (n, len(zenith))),
-                          np.broadcast_to(sky, (n, len(zenith))) + view * ground, cos_i)
+            beam, sky, from_ground, cos_i = surface_irradiance(cell, forcing, steps, tilt,
+                                                               surface_azimuth, ground)
+            cache[key] = (np.broadcast_to(beam, (n, len(zenith))), sky + from_ground, cos_i)
         return cache[key]
 
     out: dict[str, np.ndarray] = {}
@@ -273,8 +339,8 @@ def solar_inputs(cell: Cell, forcing: PeriodForcing, steps: slice) -> dict[str, 
     pool = np.zeros_like(transmitted_diffuse)
     # Beam: onto the floor where the sunlit patch lies inside it, else the walls.
     if abs(w.azimuth - 180.0) < 1.0 and abs(w.tilt - 90.0) < 1.0:
-        on_floor = beam_floor_fraction(zenith, azimuth, w.x_range, w.z_range, cell.floor_x,
-                                       cell.floor_depth)
+        on_floor = beam_floor_fraction(*beam_sun(forcing, steps), w.x_range, w.z_range,
+                                       cell.floor_x, cell.floor_depth)
     else:
         on_floor = np.ones(len(zenith))
     floors = [i for i, s in enumerate(cell.opaque) if s.kind == "floor"]

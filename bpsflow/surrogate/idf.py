@@ -70,6 +70,9 @@ FIELDS: dict[str, tuple[str, ...]] = {
         "Constant Temperature Coefficient", "External Dry-Bulb Temperature Coefficient",
         "Ground Temperature Coefficient", "Wind Speed Coefficient",
         "Zone Air Temperature Coefficient", "Constant Temperature Schedule Name"),
+    "SHADOWCALCULATION": ("Shading Calculation Method",
+                          "Shading Calculation Update Frequency Method",
+                          "Shading Calculation Update Frequency"),
     "BUILDING": ("Name", "North Axis", "Terrain", "Loads Convergence Tolerance Value",
                  "Temperature Convergence Tolerance Value", "Solar Distribution",
                  "Maximum Number of Warmup Days", "Minimum Number of Warmup Days"),
@@ -92,7 +95,7 @@ FIELDS: dict[str, tuple[str, ...]] = {
 }
 
 #: Types whose objects have no name field (a target's ``name`` must be ``*``).
-UNNAMED = {"SITE:GROUNDREFLECTANCE"}
+UNNAMED = {"SITE:GROUNDREFLECTANCE", "SHADOWCALCULATION"}
 
 
 def normalise(name: str) -> str:

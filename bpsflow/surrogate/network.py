@@ -27,6 +27,11 @@ the mean. EnergyPlus 25.2 holds the *mean* air temperature at the setpoint
 reports the ideal-loads power with the air leaving at the return air
 temperature ``T_mean + return offset`` at the flow that delivers the load
 from the supply-air temperature limit; :func:`reported_power` does the same.
+
+Detailed quantities of the inside faces (temperature, adjacent air, the
+convection coefficient and the terms of the face heat balance, seed eq. 15)
+are recorded by a :class:`FaceProbe` only when asked for, so the ensemble
+path does no extra work.
 """
 
 from __future__ import annotations
@@ -172,6 +177,106 @@ def _gap_conductance(t1: np.ndarray, t2: np.ndarray, e1: np.ndarray, e2: np.ndar
     return radiation + np.maximum(nusselt, 1.0) * conductivity / width
 
 
+#: Inside-face quantities a :class:`FaceProbe` can record (hour means).
+FACE_TERMS = ("temperature", "adjacent_air", "convection_coefficient", "convection",
+              "conduction", "radiation", "solar")
+
+
+@dataclass
+class FaceProbe:
+    """Hour means of inside-face quantities, for the faces and quantities asked for.
+
+    Faces are numbered like the stepper's: the opaque surfaces of the cell in
+    order, then the window's room-side pane. Heat flows are per unit area and
+    count as gains to the face (EnergyPlus's signs), so that at every face
+
+    ``convection + conduction + radiation + solar = 0``     (seed eq. 15)
+
+    with ``convection = h (T_adjacent - T_face)`` (seed eq. 16), ``h`` the
+    face's user curve at ``|T_adjacent - T_face|`` of the start of the step
+    (floored at :data:`H_MIN`; seed eq. 17), ``radiation`` the net long-wave
+    exchange with the other faces, ``solar`` the absorbed short-wave and
+    ``conduction`` the heat reaching the face from within the wall (the flow
+    from the next node less what the face node's share of the wall stores;
+    for the window, the flow from the outer pane, and ``solar`` what the
+    room-side pane absorbs).
+
+    Parameters
+    ----------
+    wanted : dict
+        Face index -> the :data:`FACE_TERMS` to record for it.
+    hours : int
+        Hours of the period.
+    steps_per_hour : int
+        Time steps per hour.
+
+    Attributes
+    ----------
+    values : dict
+        ``(face, term)`` -> hour means, ``(n, hours)``; °C, W/m²K or W/m².
+    """
+
+    wanted: dict[int, set[str]]
+    hours: int
+    steps_per_hour: int
+    values: dict[tuple[int, str], np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        unknown = {t for terms in self.wanted.values() for t in terms} - set(FACE_TERMS)
+        if unknown:
+            raise ValueError(f"unknown face terms {sorted(unknown)}; expected {FACE_TERMS}")
+
+    def record(self, stepper: "_Stepper", old: np.ndarray, new: np.ndarray,
+               g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict, step: int,
+               k: int) -> None:
+        """Add one step's values (``step`` in the period, ``k`` in its day)."""
+        net, cell = stepper.net, stepper.cell
+        faces = net.inside + [net.pane_in]
+        hour = step // self.steps_per_hour
+        weight = 1.0 / self.steps_per_hour
+        for m, terms in self.wanted.items():
+            node = faces[m]
+            area = stepper.opaque_areas[m]
+            t_face = new[:, node]
+            t_adjacent = new[:, net.AIR] + cell.gradient * stepper.dz[m]
+            h = g_pairs[:, 2 * m] / area
+            values = {"temperature": lambda: t_face,
+                      "adjacent_air": lambda: t_adjacent,
+                      "convection_coefficient": lambda: h,
+                      "convection": lambda: h * (t_adjacent - t_face),
+                      "radiation": lambda: g_pairs[:, 2 * m + 1] / area * (new[:, net.STAR]
+                                                                           - t_face),
+                      "solar": lambda: inputs["source"][:, k, node] / area,
+                      "conduction": lambda: self._conduction(stepper, m, old, new, g_pairs,
+                                                             capacity, inputs, k) / area}
+            for term in terms:
+                total = self.values.get((m, term))
+                if total is None:
+                    total = self.values[(m, term)] = np.zeros((net.n, self.hours))
+                total[:, hour] += weight * values[term]()
+
+    @staticmethod
+    def _conduction(stepper: "_Stepper", m: int, old: np.ndarray, new: np.ndarray,
+                    g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict,
+                    k: int) -> np.ndarray:
+        """Heat (W) reaching inside face ``m`` from within its surface.
+
+        For the window: across the gap and the panes from the outer pane.
+        """
+        net = stepper.net
+        nodes, links = net.chains[m]
+        face = nodes[-1]
+        if links and links[-1] is None:
+            inflow = g_pairs[:, -1] * (new[:, nodes[-2]] - new[:, face])
+        elif len(nodes) > 1:
+            inflow = links[-1] * (new[:, nodes[-2]] - new[:, face])
+        else:
+            # A one-node wall: the face links straight to the imposed outside face,
+            # whose term the boundary input carries as g * T_imposed.
+            inflow = inputs["boundary"][:, k, face] - net.boundary_g[m] * new[:, face]
+        return inflow - capacity[:, face] / stepper.dt * (new[:, face] - old[:, face])
+
+
 @dataclass
 class Simulation:
     """Per-step results: end-of-step mean air temperature and ideal-loads power."""
@@ -186,8 +291,13 @@ class Simulation:
 def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
              min_warmup_days: int = 6, max_warmup_days: int = 25,
              warmup_tolerance: float = 0.02, initial: np.ndarray | None = None,
-             account: bool = False, air_order: int = 3, dense: bool = False) -> Simulation:
-    """Run a period: warm-up on its first day repeated, then every day in turn."""
+             account: bool = False, air_order: int = 3, dense: bool = False,
+             probe: FaceProbe | None = None) -> Simulation:
+    """Run a period: warm-up on its first day repeated, then every day in turn.
+
+    ``probe`` (optional) records inside-face quantities over the period (not
+    the warm-up).
+    """
     n, size = network.n, network.size
     spd = forcing.steps_per_day
     dt = 3600.0 / forcing.steps_per_hour
@@ -205,6 +315,7 @@ def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
             if warmup >= min_warmup_days and change < warmup_tolerance:
                 break
     stepper.reset_energy(state)
+    stepper.probe = probe
     air = np.empty((n, forcing.steps))
     power = np.empty((n, forcing.steps))
     for day in range(forcing.days):
@@ -233,6 +344,8 @@ class _Stepper:
         self.air_order = air_order
         self.history = None
         self.dense = dense
+        self.probe: FaceProbe | None = None
+        self.first_step = 0       # index in the period of the day's first step
 
     def start(self, state: np.ndarray) -> None:
         air = state[:, self.net.AIR].copy()
@@ -269,6 +382,7 @@ class _Stepper:
         n = self.net.n
         air = np.empty((n, spd))
         power = np.empty((n, spd))
+        self.first_step = day * spd
         for k in range(spd):
             state, power[:, k] = self.step(state, inputs, k)
             air[:, k] = state[:, self.net.AIR]
@@ -371,6 +485,8 @@ class _Stepper:
         if self.account:
             stored_air = c_air * (coefficient * new[:, net.AIR] - past)
             self._account(state, new, capacity, stored_air, q, inputs, k, vent, t_out, flows_out)
+        if self.probe is not None:
+            self.probe.record(self, state, new, g_pairs, capacity, inputs, self.first_step + k, k)
         self.history = (new[:, net.AIR], h1, h2)
         return new, q
 

@@ -15,45 +15,19 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
 
 from bpsflow.config import Config, WeatherTarget, test_dates
 from bpsflow.errors import BpsflowError
-from bpsflow.surrogate.cell import Cell, build_cell
+from bpsflow.surrogate.cell import build_cell
 from bpsflow.surrogate.forcing import period_forcing
 from bpsflow.surrogate.idf import read_idf
-from bpsflow.surrogate.network import build_network, reported_power, simulate
+from bpsflow.surrogate.network import build_network, simulate
+from bpsflow.surrogate.outputs import (SUPPORTED_OUTPUTS, check_variables, face_probe,
+                                       hourly_outputs, resolve_outputs, used_outputs)
 from bpsflow.surrogate.params import field_values, sample_columns
 
 #: Weather quantities the surrogate has no physics for.
 WEATHER_IGNORED = {"wind_direction": "the exterior convection uses wind speed only"}
 
-#: EnergyPlus output variables the surrogate computes (upper-case name).
-SUPPORTED_OUTPUTS = (
-    "ZONE MEAN AIR TEMPERATURE",
-    "ZONE THERMOSTAT AIR TEMPERATURE",
-    "ZONE IDEAL LOADS ZONE SENSIBLE HEATING RATE",
-    "ZONE IDEAL LOADS ZONE SENSIBLE COOLING RATE",
-)
-
-
-def _check_outputs(config: Config) -> None:
-    used = {o for t in config.model.tests for o in t.outputs}
-    for name in sorted(used):
-        variable = config.outputs[name].variable.upper()
-        if variable not in SUPPORTED_OUTPUTS:
-            raise BpsflowError(
-                f"outputs.{name}: the surrogate does not compute '{config.outputs[name].variable}'"
-                f" (it has: {', '.join(v.title() for v in SUPPORTED_OUTPUTS)})",
-                source=config.source)
-
-
-def _quantity(cell: Cell, variable: str, air: np.ndarray, heating: np.ndarray,
-              cooling: np.ndarray, values) -> np.ndarray:
-    variable = variable.upper()
-    if variable == "ZONE MEAN AIR TEMPERATURE":
-        return air
-    if variable == "ZONE THERMOSTAT AIR TEMPERATURE":
-        return air + values.thermostat_offset[:, None]
-    if variable == "ZONE IDEAL LOADS ZONE SENSIBLE HEATING RATE":
-        return heating
-    return cooling
+__all__ = ["SUPPORTED_OUTPUTS", "WEATHER_IGNORED", "simulate_instances", "simulate_tidy",
+           "run_surrogate", "ignored_targets", "announce_ignored"]
 
 
 class _Extra:
@@ -75,14 +49,13 @@ def simulate_instances(config: Config, samples: pd.DataFrame, run_dir: Path | No
     Rows: instance, test, output, timestamp (hour-ending), value, for each
     test's whole window like :func:`bpsflow.runner.tidy_outputs`.
     """
-    _check_outputs(config)
+    check_variables(config)
     samples = sample_columns(config, samples)
     labels = list(samples.index)
     values = field_values(config, read_idf(config.model.idf), samples)
     cell = build_cell(config, values)
-    wants_tstat = any(config.outputs[o].variable.upper() == "ZONE THERMOSTAT AIR TEMPERATURE"
-                      for t in config.model.tests for o in t.outputs)
-    extra = _Extra(values, wants_tstat)
+    requests = resolve_outputs(config, cell)
+    extra = _Extra(values, _wants_thermostat(config))
     network = build_network(cell)
     tph = config.model.timesteps_per_hour
     integer = all(isinstance(label, (int, np.integer)) for label in labels)
@@ -93,21 +66,18 @@ def simulate_instances(config: Config, samples: pd.DataFrame, run_dir: Path | No
         if not tests:
             continue
         forcing = period_forcing(config, cell, period, samples, run_dir)
-        result = simulate(cell, network, forcing)
-        heating, cooling = reported_power(cell, result.power, result.air)
         hours = forcing.days * 24
-        hourly = {name: a.reshape(cell.n, hours, tph).mean(axis=2)
-                  for name, a in (("air", result.air), ("heating", heating),
-                                  ("cooling", cooling))}
+        wanted = [requests[o] for o in sorted({o for t in tests for o in t.outputs})]
+        probe = face_probe(wanted, hours, tph)
+        result = simulate(cell, network, forcing, probe=probe)
+        hourly = hourly_outputs(wanted, cell, forcing, result, probe, extra.thermostat_offset)
         stamps = pd.Timestamp(forcing.first) + pd.to_timedelta(np.arange(1, hours + 1), unit="h")
         for test in tests:
             first, _, last = test_dates(test, config.model.year)
             begin = (first - forcing.first).days * 24
             end = ((last - forcing.first).days + 1) * 24
             for output in test.outputs:
-                spec = config.outputs[output]
-                data = _quantity(cell, spec.variable, hourly["air"], hourly["heating"],
-                                 hourly["cooling"], extra)[:, begin:end] * spec.scale
+                data = hourly[output][:, begin:end] * config.outputs[output].scale
                 count = end - begin
                 frames.append(pd.DataFrame({
                     "instance": np.repeat(label_array, count),
@@ -118,14 +88,18 @@ def simulate_instances(config: Config, samples: pd.DataFrame, run_dir: Path | No
     return tidy, ignored_targets(config, values)
 
 
+def _wants_thermostat(config: Config) -> bool:
+    return any(config.outputs[o].variable.strip().upper() == "ZONE THERMOSTAT AIR TEMPERATURE"
+               for o in used_outputs(config))
+
+
 def ignored_targets(config: Config, values=None) -> list[str]:
     """Targets of the config the surrogate has no physics for (labels with parameters)."""
     if values is None:
         samples = sample_columns(config, pd.DataFrame(index=pd.Index([0], name="instance")))
         values = field_values(config, read_idf(config.model.idf), samples)
         build_cell(config, values)
-        _Extra(values, any(config.outputs[o].variable.upper() == "ZONE THERMOSTAT AIR TEMPERATURE"
-                           for t in config.model.tests for o in t.outputs))
+        _Extra(values, _wants_thermostat(config))
     out = values.ignored()
     for p in config.parameters:
         for t in p.targets:

@@ -1,7 +1,16 @@
 """Solar gains of the test cell: sun position, facade irradiance, glazing optics.
 
-* Sun position and the Perez sky-diffuse irradiance on the facade come from
-  pvlib; the ground-reflected part is ``rho_g * GHI * (1 - cos tilt) / 2`` with
+* The sun position is EnergyPlus's own (its daily Fourier series for the
+  declination and the equation of time, the hour angle at the end of each
+  time step), since the surrogate must reproduce EnergyPlus rather than the
+  true sun: pvlib's SPA differs from it by up to 0.3 degrees. EnergyPlus
+  computes the beam's angle of incidence on surfaces (and the sunlit patch
+  inside) from the declination and equation of time *averaged* over each
+  shading-calculation period (20 days by default): in July that sun stands
+  up to a degree off the daily one, which moves the beam on a south facade
+  by several per cent, so the surrogate does the same (:func:`sun_positions`).
+* The Perez sky-diffuse irradiance on the facade comes from pvlib; the
+  ground-reflected part is ``rho_g * GHI * (1 - cos tilt) / 2`` with
   ``GHI = DNI cos Z + DHI`` (the ground reflectance varies per instance).
 * Each glass pane's angular solar properties follow from its normal-incidence
   transmittance and reflectance: the pair is inverted for the interface
@@ -26,31 +35,129 @@ import pandas as pd
 ANGLES_DEG = np.linspace(0.0, 90.0, 91)
 
 
-def sun_position(times: pd.DatetimeIndex, latitude: float, longitude: float,
-                 elevation: float) -> tuple[np.ndarray, np.ndarray]:
-    """Apparent zenith and azimuth (degrees) at ``times`` (timezone-aware)."""
-    import pvlib
+#: EnergyPlus's Fourier coefficients (constant, then sin and cos of x, 2x, 3x,
+#: 4x with x = 0.017167 x day of year) of the sine of the solar declination
+#: and of the equation of time (hours); WeatherManager, CalculateDailySolarCoeffs.
+_SINE_DECLINATION = (0.00561800, 0.0657911, -0.392779, 0.00064440, -0.00618495,
+                     -0.00010101, -0.00007951, -0.00011691, 0.00002096)
+_EQUATION_OF_TIME = (0.00021971, -0.122649, 0.00762856, -0.156308, -0.0530028,
+                     -0.00388702, -0.00123978, -0.00270502, -0.00167992)
+#: EnergyPlus's default shading-calculation update frequency (days).
+SHADING_DAYS = 20
 
-    position = pvlib.solarposition.get_solarposition(times, latitude, longitude,
-                                                     altitude=elevation)
-    return position["apparent_zenith"].to_numpy(), position["azimuth"].to_numpy()
+
+def daily_solar_coefficients(day_of_year: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sine of the solar declination and the equation of time (h) of each day, as EnergyPlus."""
+    x = 0.017167 * np.asarray(day_of_year, dtype=float)
+    terms = [np.ones_like(x)]
+    for k in (1, 2, 3, 4):
+        terms += [np.sin(k * x), np.cos(k * x)]
+    return (sum(c * t for c, t in zip(_SINE_DECLINATION, terms)),
+            sum(c * t for c, t in zip(_EQUATION_OF_TIME, terms)))
+
+
+def _position(hours: np.ndarray, sine_declination: np.ndarray, equation_of_time: np.ndarray,
+              latitude: float, longitude: float, time_zone: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Zenith and azimuth (degrees, azimuth clockwise from north) at local standard ``hours``."""
+    hour_angle = np.radians(15.0 * (12.0 - (hours + longitude / 15.0 - time_zone
+                                            + equation_of_time)))
+    cos_declination = np.sqrt(1.0 - sine_declination ** 2)
+    phi = np.radians(latitude)
+    up = np.sin(phi) * sine_declination + np.cos(phi) * cos_declination * np.cos(hour_angle)
+    east = cos_declination * np.sin(hour_angle)
+    north = np.cos(phi) * sine_declination - np.sin(phi) * cos_declination * np.cos(hour_angle)
+    zenith = np.degrees(np.arccos(np.clip(up, -1.0, 1.0)))
+    return zenith, np.degrees(np.arctan2(east, north)) % 360.0
+
+
+def sun_positions(step_ends: pd.DatetimeIndex, latitude: float, longitude: float,
+                  time_zone: float, shading_days: int | None = SHADING_DAYS
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """EnergyPlus's sun at the end of each time step of a run period.
+
+    Parameters
+    ----------
+    step_ends : DatetimeIndex
+        Naive local-standard-time ends of the steps, from the run period's
+        first day on.
+    latitude, longitude : float
+        Site (degrees north, degrees east).
+    time_zone : float
+        Hours from UTC.
+    shading_days : int or None
+        Shading-calculation update frequency (days; ``None``: every time step).
+
+    Returns
+    -------
+    zenith, azimuth
+        The sun of each step (degrees): sun up/down, site quantities, sky
+        diffuse.
+    beam_zenith, beam_azimuth
+        The sun EnergyPlus takes for the beam's incidence on surfaces: the
+        declination and equation of time averaged over each shading period
+        (``shading_days`` from the run period's first day, the last one cut
+        at the period's end).
+    """
+    # EnergyPlus's hour 24 (the step ending at midnight) belongs to the day before.
+    starts = step_ends - pd.Timedelta(seconds=1)
+    day = np.asarray(starts.day_of_year, dtype=int)
+    hours = np.asarray((step_ends - starts.normalize()) / pd.Timedelta(hours=1), dtype=float)
+    sine, equation = daily_solar_coefficients(day)
+    zenith, azimuth = _position(hours, sine, equation, latitude, longitude, time_zone)
+    if shading_days is None:
+        return zenith, azimuth, zenith, azimuth
+    # Day index within the period (the period may cross a year's end).
+    day_index = np.concatenate([[0], np.cumsum(np.diff(day) != 0)])
+    window = day_index // shading_days
+    beam_sine, beam_equation = np.empty_like(sine), np.empty_like(equation)
+    for w in np.unique(window):
+        steps = window == w
+        days = np.unique(day[steps])
+        mean_sine, mean_equation = daily_solar_coefficients(days)
+        beam_sine[steps], beam_equation[steps] = mean_sine.mean(), mean_equation.mean()
+    beam_zenith, beam_azimuth = _position(hours, beam_sine, beam_equation, latitude, longitude,
+                                          time_zone)
+    return zenith, azimuth, beam_zenith, beam_azimuth
+
+
+#: Extraterrestrial irradiance (W/m²) in EnergyPlus's Perez sky brightness.
+PEREZ_EXTRATERRESTRIAL = 1353.0
+
+
+def energyplus_airmass(zenith: np.ndarray) -> np.ndarray:
+    """Relative air mass as EnergyPlus's Perez model takes it (sea level)."""
+    zenith = np.minimum(np.asarray(zenith, dtype=float), 89.9)
+    cos_zenith = np.cos(np.radians(zenith))
+    with np.errstate(invalid="ignore"):
+        kasten = 1.0 / (cos_zenith + 0.15 * (93.9 - zenith) ** -1.253)
+    return np.where(zenith <= 75.0, 1.0 / cos_zenith, kasten)
 
 
 def facade_irradiance(times: pd.DatetimeIndex, zenith: np.ndarray, azimuth: np.ndarray,
-                      dni: np.ndarray, dhi: np.ndarray, tilt: float, surface_azimuth: float
+                      dni: np.ndarray, dhi: np.ndarray, tilt: float, surface_azimuth: float,
+                      beam_zenith: np.ndarray | None = None,
+                      beam_azimuth: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(beam incident, sky diffuse, cos of incidence) on a surface; W/m².
 
     ``dni`` and ``dhi`` may be ``(n_instances, n_times)``: the Perez model is
-    evaluated element-wise.
+    evaluated element-wise. The beam's incidence uses ``beam_zenith`` and
+    ``beam_azimuth`` when given (EnergyPlus's shading-period sun), else the
+    sun of the step.
     """
     import pvlib
 
-    cos_incidence = np.cos(np.radians(pvlib.irradiance.aoi(tilt, surface_azimuth, zenith,
-                                                           azimuth)))
-    cos_incidence = np.where(zenith < 90.0, np.clip(cos_incidence, 0.0, 1.0), 0.0)
-    dni_extra = np.asarray(pvlib.irradiance.get_extra_radiation(times))
-    airmass = np.asarray(pvlib.atmosphere.get_relative_airmass(np.minimum(zenith, 89.9)))
+    beam_zenith = zenith if beam_zenith is None else beam_zenith
+    beam_azimuth = azimuth if beam_azimuth is None else beam_azimuth
+    cos_incidence = np.cos(np.radians(pvlib.irradiance.aoi(tilt, surface_azimuth, beam_zenith,
+                                                           beam_azimuth)))
+    cos_incidence = np.where((zenith < 90.0) & (beam_zenith < 90.0),
+                             np.clip(cos_incidence, 0.0, 1.0), 0.0)
+    # EnergyPlus's Perez inputs: a constant 1353 W/m² extraterrestrial
+    # irradiance and its air mass (1/cos Z, Kasten's form beyond 75 degrees).
+    dni_extra = np.full(zenith.shape, PEREZ_EXTRATERRESTRIAL)
+    airmass = energyplus_airmass(zenith)
     shape = np.broadcast_shapes(np.shape(dni), np.shape(dhi), zenith.shape)
     dni_b = np.broadcast_to(dni, shape)
     dhi_b = np.broadcast_to(dhi, shape)

@@ -1,0 +1,207 @@
+"""The ``calibration:`` section of a config (validated with pydantic, no heavy imports).
+
+Kennedy–O'Hagan calibration (seed §4.3, eq. 19–22) and the deterministic
+baseline are driven by this section; ``configs/calibration.yaml`` is the
+shipped example::
+
+    calibration:
+      outputs: [heating_power_w]          # which measured outputs to calibrate to
+      resolution: daily                   # daily | hourly (seed Table 4.1)
+      holdout_days: 7                     # the last days of the evaluated period
+      design: {runs: 840, seed: 11}       # LHD over the calibration parameters
+      scenarios:                          # bpsflow calibrate --scenarios
+        - {name: D-E, outputs: [heating_power_w], resolution: daily}
+
+Calibration parameters θ are the config's non-constant parameters (a
+``constant`` distribution marks a parameter screened out and fixed), unless
+``parameters`` names them; every other parameter is held at its nominal value
+(its distribution's median) in every calibration run.
+
+This module imports only pydantic so that :mod:`bpsflow.config` can use it
+without loading JAX.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+_NAME = r"^[A-Za-z_][A-Za-z0-9_.\-]*$"
+
+Resolution = Literal["daily", "hourly"]
+
+#: Variable inputs x a calibration may use (seed Table 4.2, lower half). Weather
+#: quantities are means over the interval (day or hour) from the config's EPW.
+VARIABLE_INPUTS = (
+    "outdoor_air_temperature",          # °C, interval mean
+    "outdoor_air_temperature_24h",      # °C, mean of the 24 h before the interval
+    "global_horizontal_radiation",      # W/m², interval mean
+    "global_horizontal_radiation_24h",  # W/m², mean of the 24 h before the interval
+    "direct_normal_radiation",          # W/m²
+    "diffuse_horizontal_radiation",     # W/m²
+    "wind_speed",                       # m/s
+    "hour_of_day",                      # 0..23, hour the interval starts (hourly only)
+    "hour_of_day_sin", "hour_of_day_cos",  # the hour on the unit circle (hourly only)
+    "weekend",                          # 1 on Saturday and Sunday
+    "setpoint_c",                       # °C, setpoint in force (interval mean)
+    "setpoint_c_lag2",                  # °C, setpoint two hours before (seed Table 4.2 #6)
+    "output",                           # output-type indicator (seed §4.3.3), when pooled
+)
+
+DEFAULT_VARIABLE_INPUTS: dict[str, list[str]] = {
+    "daily": ["outdoor_air_temperature", "outdoor_air_temperature_24h",
+              "global_horizontal_radiation", "wind_speed", "output"],
+    "hourly": ["outdoor_air_temperature", "outdoor_air_temperature_24h",
+               "global_horizontal_radiation", "global_horizontal_radiation_24h", "wind_speed",
+               "hour_of_day_sin", "hour_of_day_cos", "setpoint_c", "setpoint_c_lag2", "output"],
+}
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CalibrationDesign(_Strict):
+    """The Latin hypercube over θ whose runs train the emulator (seed §4.3.4: 840 points)."""
+
+    runs: int = Field(default=840, ge=10)
+    seed: int = 0
+
+
+class EmulatorSettings(_Strict):
+    """GP emulator of η(x, t) (seed eq. 20): ARD squared exponential, MLE hyperparameters.
+
+    ``points`` (run, time) pairs are drawn from the training runs for the
+    maximum-likelihood fit of the hyperparameters; ``test_fraction`` of the
+    runs are held out to test the emulator (seed: 10 %).
+    """
+
+    points: int = Field(default=840, ge=20)
+    test_fraction: float = Field(default=0.1, ge=0.0, lt=0.5)
+    restarts: int = Field(default=1, ge=0)
+    seed: int = 0
+
+
+class LogNormalPrior(_Strict):
+    """A lognormal prior given by its median and the standard deviation of its log."""
+
+    median: float = Field(gt=0)
+    log_sd: float = Field(default=0.5, gt=0)
+
+
+class BayesSettings(_Strict):
+    """NUTS over θ, δ's hyperparameters and σ_ε (seed eq. 21–22).
+
+    Priors on δ and ε are in standardised output units (each output divided
+    by its standard deviation over the simulations): the seed assumes about
+    20 % model bias and 5 % observation error (§4.3.5, after Guillas et al.
+    2009). ``discrepancy_lengthscale`` is on the standardised variable inputs;
+    ``ard: true`` gives δ one length-scale per variable input instead of one
+    shared.
+
+    A run is converged when every sampled quantity has split R-hat (rank
+    normalised) at most ``rhat_max``, bulk and tail ESS at least ``ess_min``
+    and the share of divergent transitions is at most ``divergence_max``.
+
+    ``screen_effect`` drops from the sampler the calibration parameters whose
+    largest effect on the emulator over their range is under this many
+    standardised output units: the data cannot inform them, so their
+    posterior is their prior (reported as such).
+    """
+
+    chains: int = Field(default=4, ge=1)
+    warmup: int = Field(default=500, ge=0)
+    samples: int = Field(default=500, ge=1)
+    target_accept: float = Field(default=0.85, gt=0, lt=1)
+    max_tree_depth: int = Field(default=8, ge=1, le=15)
+    dense_mass: bool = True
+    seed: int = 0
+    init: Literal["deterministic", "prior"] = "deterministic"
+    discrepancy_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.2))
+    discrepancy_lengthscale: LogNormalPrior = Field(
+        default_factory=lambda: LogNormalPrior(median=1.0, log_sd=0.75))
+    noise_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.05))
+    ard: bool = False
+    screen_effect: float = Field(default=0.01, ge=0)
+    rhat_max: float = Field(default=1.01, gt=1)
+    ess_min: float = Field(default=400, ge=0)
+    divergence_max: float = Field(default=0.01, ge=0, le=1)
+
+
+class DeterministicSettings(_Strict):
+    """Bounded multi-start minimisation of w₁·NMBE² + w₂·CV(RMSE)² (seed §4.3.5, Reddy 2007).
+
+    ``model: emulator`` minimises over the emulator's mean (any backend,
+    cheap); ``simulator`` over the physical model itself (surrogate backend
+    only: each objective evaluation is a simulation).
+    """
+
+    nmbe_weight: float = Field(default=1.0, ge=0)
+    cv_rmse_weight: float = Field(default=1.0, ge=0)
+    starts: int = Field(default=8, ge=1)
+    seed: int = 0
+    model: Literal["emulator", "simulator"] = "emulator"
+
+    @model_validator(mode="after")
+    def _weights(self) -> "DeterministicSettings":
+        if self.nmbe_weight + self.cv_rmse_weight <= 0:
+            raise ValueError("nmbe_weight and cv_rmse_weight cannot both be 0")
+        return self
+
+
+class Scenario(_Strict):
+    """One data scenario (seed Table 4.1): which outputs, at which resolution."""
+
+    name: str = Field(pattern=_NAME)
+    outputs: list[str] = Field(min_length=1)
+    resolution: Resolution = "daily"
+    variable_inputs: list[str] | None = None
+
+
+class CalibrationSettings(_Strict):
+    """The ``calibration:`` section. See the module docstring for an example.
+
+    ``max_observations`` caps the calibration observations (a seeded random
+    subset is kept, recorded in ``calibration.json``); the seed keeps one
+    hourly output per sample point for the same reason (§4.3.4).
+    ``idle_fraction``: hourly and daily heating/cooling observations at or
+    below this fraction of the output's mean are dropped (the system was off;
+    seed §4.3.4 drops hourly heating outputs when heating is off).
+    ``posterior_runs``: posterior draws re-run on the physical model over the
+    held-out period (seed: 100).
+    """
+
+    parameters: list[str] | None = None
+    outputs: list[str] | None = None
+    resolution: Resolution = "daily"
+    variable_inputs: list[str] | None = None
+    holdout_days: int = Field(default=7, ge=1)
+    max_observations: int = Field(default=300, ge=5)
+    observation_seed: int = 0
+    idle_fraction: float = Field(default=0.01, ge=0, lt=1)
+    design: CalibrationDesign = Field(default_factory=CalibrationDesign)
+    emulator: EmulatorSettings = Field(default_factory=EmulatorSettings)
+    bayes: BayesSettings = Field(default_factory=BayesSettings)
+    deterministic: DeterministicSettings = Field(default_factory=DeterministicSettings)
+    posterior_runs: int = Field(default=100, ge=2)
+    scenarios: list[Scenario] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _check(self) -> "CalibrationSettings":
+        names = [s.name for s in self.scenarios]
+        if len(set(names)) != len(names):
+            raise ValueError("scenarios: scenario names must be unique")
+        for where, inputs in [("variable_inputs", self.variable_inputs)] + [
+                (f"scenarios ({s.name}).variable_inputs", s.variable_inputs)
+                for s in self.scenarios]:
+            for name in inputs or []:
+                if name not in VARIABLE_INPUTS:
+                    raise ValueError(f"{where}: unknown variable input '{name}', expected some "
+                                     f"of {', '.join(VARIABLE_INPUTS)}")
+        return self
+
+    def scenario(self, default_outputs: list[str]) -> Scenario:
+        """The top-level choice of outputs and resolution as a scenario named ``main``."""
+        return Scenario(name="main", outputs=self.outputs or default_outputs,
+                        resolution=self.resolution, variable_inputs=self.variable_inputs)

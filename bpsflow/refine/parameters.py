@@ -1,0 +1,160 @@
+"""From estimates to config parameters: finding them by target, units, refined distributions.
+
+A refined quantity is matched to the config's parameters by what they
+target (IDF object type, object name, field), never by parameter name, so a
+config may name its parameters freely. Estimates are physical values (α in
+W/m²·K^(1+n), a gradient in K/m); a parameter may be ``relative`` (a
+multiplier on the IDF's nominal value), ``absolute`` or ``additive``, so each
+estimate is expressed in its parameter's units with the nominal read from the
+IDF (:func:`bpsflow.surrogate.idf.read_idf`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from pydantic import TypeAdapter
+
+from bpsflow.config import Config, IdfTarget, Parameter
+from bpsflow.distributions import Distribution, Empirical
+from bpsflow.errors import BpsflowError
+from bpsflow.surrogate.idf import UNNAMED, IdfModel, normalise
+
+#: Central probability of the intervals reported before and after refinement.
+INTERVAL = 0.90
+
+#: Refined bounded normals are cut at this many standard errors.
+BOUND_SIGMAS = 3.0
+
+_DISTRIBUTION = TypeAdapter(Distribution)
+
+
+def idf_targets(parameter: Parameter) -> list[IdfTarget]:
+    return [t for t in parameter.targets if isinstance(t, IdfTarget)]
+
+
+def targets_field(target: IdfTarget, object_type: str, field: str, name: str | None = None) -> bool:
+    """Whether an IDF target sets ``field`` of ``object_type`` (named ``name``, or any)."""
+    if normalise(target.object) != normalise(object_type) or \
+            normalise(target.field) != normalise(field):
+        return False
+    return name is None or target.name == "*" or target.name.upper() == name.upper()
+
+
+def parameters_targeting(config: Config, object_type: str, field: str,
+                         name: str | None = None) -> list[Parameter]:
+    """The config's parameters with a target on ``object_type`` ``name`` ``field``."""
+    return [p for p in config.parameters
+            if any(targets_field(t, object_type, field, name) for t in idf_targets(p))]
+
+
+def idf_nominal(idf: IdfModel, target: IdfTarget) -> float:
+    """The model's value of a target field (the first object when the name is ``*``)."""
+    objects = idf.of_type(target.object)
+    if target.name != "*" and target.object.upper() not in UNNAMED:
+        objects = [o for o in objects if o.name.upper() == target.name.upper()]
+    if not objects:
+        raise BpsflowError(f"the model has no {target.object} '{target.name}' (a refined "
+                           f"parameter targets it)", source=idf.path)
+    try:
+        return objects[0].number(target.field)
+    except KeyError:
+        raise BpsflowError(f"{target.object} field '{target.field}' cannot be read without "
+                           f"EnergyPlus's IDD", source=idf.path) from None
+
+
+def parameter_nominal(idf: IdfModel, parameter: Parameter) -> float | None:
+    """The IDF value a parameter's mode refers to (``None`` for absolute parameters)."""
+    if parameter.mode == "absolute":
+        return None
+    return idf_nominal(idf, idf_targets(parameter)[0])
+
+
+def in_parameter_units(values, mode: str, nominal: float | None):
+    """Physical values expressed as a parameter's values (multiplier, value, or offset)."""
+    values = np.asarray(values, dtype=float)
+    if mode == "relative":
+        return values / nominal
+    if mode == "additive":
+        return values - nominal
+    return values
+
+
+def std_in_parameter_units(std: float, mode: str, nominal: float | None) -> float:
+    return std / abs(nominal) if mode == "relative" else std
+
+
+def bounded_normal(mean: float, std: float, floor: float | None = None) -> dict:
+    """A normal cut at ±:data:`BOUND_SIGMAS` standard errors (and at ``floor``), as YAML."""
+    lower, upper = mean - BOUND_SIGMAS * std, mean + BOUND_SIGMAS * std
+    if floor is not None:
+        lower = max(lower, floor)
+    return {"type": "normal", "mean": _round(mean), "std": _round(std),
+            "lower": _round(lower), "upper": _round(upper)}
+
+
+def _round(value: float) -> float:
+    return float(f"{value:.6g}")
+
+
+def distribution_from(spec: dict, values: np.ndarray | None = None) -> Distribution:
+    """A distribution object from its YAML mapping (empirical: with ``values`` loaded)."""
+    distribution = _DISTRIBUTION.validate_python(spec)
+    if isinstance(distribution, Empirical):
+        distribution = distribution.model_copy(
+            update={"values_": tuple(np.sort(np.asarray(values, dtype=float)))})
+    return distribution
+
+
+def interval(distribution: Distribution, level: float = INTERVAL) -> tuple[float, float]:
+    """The central ``level`` interval of a distribution (its quantiles)."""
+    tail = (1 - level) / 2
+    low, high = distribution.ppf(np.array([tail, 1 - tail]))
+    return float(low), float(high)
+
+
+def inside_convection_curve(idf: IdfModel, surface: str) -> str:
+    """The Hc curve of a surface's inside convection, following the IDF's chain.
+
+    SurfaceProperty:ConvectionCoefficients (Inside, UserCurve) →
+    SurfaceConvectionAlgorithm:Inside:UserCurve → its "Hc Function of
+    Temperature Difference Curve Name".
+    """
+    for obj in idf.of_type("SurfaceProperty:ConvectionCoefficients"):
+        if obj.get("Surface Name").upper() != surface.upper():
+            continue
+        for k in (1, 2):
+            if (obj.get(f"Convection Coefficient {k} Location").upper() == "INSIDE"
+                    and obj.get(f"Convection Coefficient {k} Type").upper() == "USERCURVE"):
+                algorithm = idf.find("SurfaceConvectionAlgorithm:Inside:UserCurve",
+                                     obj.get(f"Convection Coefficient {k} User Curve Name"))
+                return algorithm.get("Hc Function of Temperature Difference Curve Name")
+    raise BpsflowError(f"surface '{surface}' has no inside UserCurve convection "
+                       f"(SurfaceProperty:ConvectionCoefficients)", source=idf.path)
+
+
+def class_surface(idf: IdfModel, surface_class: str, named: dict[str, str]) -> str:
+    """The IDF surface a surface class was measured on (``detailed.json``, else by type)."""
+    if surface_class in named:
+        return named[surface_class]
+    from bpsflow.detailed import SURFACE_CLASSES
+
+    if surface_class in SURFACE_CLASSES:
+        return SURFACE_CLASSES[surface_class]
+    wanted = {"wall": ("WALL",), "ceiling": ("CEILING", "ROOF"), "floor": ("FLOOR",)}
+    for obj in idf.of_type("BuildingSurface:Detailed"):
+        if obj.get("Surface Type").upper() in wanted.get(surface_class, ()):
+            return obj.name
+    raise BpsflowError(f"no surface of class '{surface_class}' in the model and none named in "
+                       f"detailed.json", source=idf.path)
+
+
+def relative_file(path: Path, start: Path) -> str:
+    """``path`` relative to ``start`` where possible (configs stay movable together)."""
+    import os
+
+    try:
+        return os.path.relpath(path, start)
+    except ValueError:  # another drive on Windows
+        return str(path)
