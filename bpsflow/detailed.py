@@ -20,8 +20,13 @@ module is the one place that defines those measurements:
   - irradiance, net radiation and heat flux: reading = true · (1 + ε),
     ε ~ N(0, (0.05/3)²) per reading. Table 3.2 lists no heat-flux sensor; the
     ±5 % of its irradiance sensors is assumed for heat-flux plates too;
-  - ``<class>_h_c_w_m2k`` is the model's own coefficient, written without error
-    for checking only (no sensor measures it).
+  - ``<class>_h_c_w_m2k``: the convection coefficient a laboratory derives from
+    its heat balance (eq. 15–16) at its own logging interval (minutes) and
+    averages to the hour, read like a heat flux: true · (1 + ε). It is
+    optional in a ``detailed.csv``; without it a refinement falls back on the
+    hourly heat balance, which is biased for this model (EnergyPlus couples
+    convection to the previous time step's air temperature, and an hourly mean
+    of q/ΔT is not q̄/ΔT̄).
 
 Files written by ``bpsflow synth --detailed``: ``detailed.csv``,
 ``sensor_calibration.csv`` and ``detailed.json`` (metadata a refinement may
@@ -102,8 +107,8 @@ CLASS_COLUMN_SUFFIXES = ("surface_c", "air_c", "conduction_w_m2", "radiation_w_m
 #: Columns of ``detailed.csv`` that do not depend on the config.
 OTHER_COLUMNS = ("window_transmitted_w_m2", "window_incident_w_m2", "global_horizontal_w_m2",
                  "south_ground_reflected_w_m2")
-#: Columns written as the model's value, without sensor error.
-EXACT_SUFFIXES = ("_h_c_w_m2k",)
+#: Columns a detailed.csv may leave out (the laboratory's derived convection coefficient).
+OPTIONAL_SUFFIXES = ("_h_c_w_m2k",)
 
 #: Prefix of the free-floating tests spanning each run period that carry the detailed outputs.
 SPAN_TEST_PREFIX = "detailed-"
@@ -641,8 +646,8 @@ def sensor_readings(true: pd.DataFrame, errors: SensorErrors,
     """Sensor readings of true values.
 
     Temperature columns (ending ``_c``): true + δ_i + N(0, σ_i²) (eq. 9, 12).
-    Columns ending ``_h_c_w_m2k``: the true value (no sensor). Every other
-    column (irradiance, net radiation, heat flux): true · (1 + ε),
+    Every other column (irradiance, net radiation, heat flux, the derived
+    convection coefficient): true · (1 + ε),
     ε ~ N(0, relative_std²).
 
     Parameters
@@ -667,8 +672,6 @@ def sensor_readings(true: pd.DataFrame, errors: SensorErrors,
                 raise KeyError(f"no sensor error drawn for temperature column '{column}'")
             readings[column] = (values + errors.bias_c[column]
                                 + errors.std_c[column] * rng.standard_normal(values.shape))
-        elif column.endswith(EXACT_SUFFIXES):
-            readings[column] = values
         else:
             readings[column] = values * (1 + errors.relative_std * rng.standard_normal(values.shape))
     return readings
@@ -712,7 +715,8 @@ def sensor_error_description() -> str:
         "(<class>_radiation_w_m2) and heat flux (<class>_conduction_w_m2): reading = true * "
         f"(1 + N(0, {RELATIVE_STD:.6g}^2)) per reading (Table 3.2 +-5 % read as 3 std; Table 3.2 "
         "has no heat-flux sensor, the irradiance bound is assumed). <class>_h_c_w_m2k is the "
-        "model's own coefficient without error, for checking only. Boundary sensors: 9 per "
+        "laboratory's convection coefficient from its per-step heat balance averaged to the "
+        "hour, with the heat-flux error. Boundary sensors: 9 per "
         "surface, equal representative area, each reading the surface's true boundary "
         "temperature (eq. 13 averages them)."
     )
@@ -825,8 +829,8 @@ def read_detailed(path: Path, surfaces: Iterable[str] | None = None) -> pd.DataF
         meta = path.parent / METADATA_FILE
         surfaces = json.loads(meta.read_text()).get("boundary_sensor_area_m2", {}) \
             if meta.is_file() else []
-    frame = _read_table(path, ["timestamp"] + detailed_columns(list(surfaces)),
-                        "detailed measurements")
+    required = [c for c in detailed_columns(list(surfaces)) if not c.endswith(OPTIONAL_SUFFIXES)]
+    frame = _read_table(path, ["timestamp"] + required, "detailed measurements")
     stamps = pd.to_datetime(frame["timestamp"], errors="coerce")
     if stamps.isna().any():
         row = int(stamps.isna().to_numpy().argmax())

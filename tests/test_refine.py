@@ -43,12 +43,14 @@ TRUTH_PARAMETERS = {"wall_stack_coefficient": 1.25, "wall_stack_exponent": 0.30,
 
 
 def make_detailed(folder: Path, seed: int = 0, minutes: int = 60, days: int = 6,
-                  calibration_steps: int = 200) -> dict:
+                  calibration_steps: int = 200, derived_h: bool = False) -> dict:
     """Write detailed.csv, sensor_calibration.csv, detailed.json with known truth.
 
     True values follow :data:`TRUTH` exactly; the sensors (biases, random
     errors, relative flux and irradiance errors, the calibration campaign)
     are those of :mod:`bpsflow.detailed`, which also writes the files.
+    Without ``derived_h`` the laboratory's convection-coefficient columns are
+    left out, so refinement takes the heat-balance path (eq. 15–16).
     Returns the truth: sensor errors, true boundary surface means, timestamps.
     """
     rng = np.random.default_rng(seed)
@@ -91,6 +93,8 @@ def make_detailed(folder: Path, seed: int = 0, minutes: int = 60, days: int = 6,
     true["south_ground_reflected_w_m2"] = TRUTH["reflectance"] * 0.5 * ghi
     errors = contract.draw_sensor_errors(true.columns, rng)
     readings = contract.sensor_readings(true, errors, rng)
+    if not derived_h:
+        readings = readings.drop(columns=[c for c in readings.columns if c.endswith("_h_c_w_m2k")])
     calibration = contract.calibration_campaign(errors, rng, readings=calibration_steps)
     contract.write_detailed(folder, readings, calibration, {
         "air_sensor_separation_m": SEPARATION_M, "glazed_area_m2": 6.0,
@@ -154,7 +158,8 @@ def test_weighted_mean_variance_matches_monte_carlo():
     noise = rng.standard_normal((trials, 4)) * np.sqrt(variance + SIGMA_M ** 2)
     readings = pd.DataFrame(true_c + bias + noise, columns=sensors)
     mean, formula = est.weighted_mean_temperature(readings, areas, calibration, SIGMA_M)
-    assert formula == pytest.approx(np.sum(areas ** 2 * (variance + SIGMA_M ** 2)) / areas.sum() ** 2)
+    assert formula == pytest.approx(
+        np.sum(areas ** 2 * (variance + SIGMA_M ** 2)) / areas.sum() ** 2)
     # sample variance of the Monte Carlo means within its sampling error (4 std)
     assert abs(mean.var() / formula - 1) < 4 * np.sqrt(2 / trials)
     assert abs(mean.mean() - true_c) < 4 * np.sqrt(formula / trials)
@@ -197,6 +202,21 @@ def test_convection_regression_recovers_alpha_and_n_through_the_heat_balance():
     assert fit.points == used.sum() and 0 < fit.r_squared <= 1
     # at |ΔT| ≥ 10 σ the errors-in-variables attenuation is small (fit_convection)
     assert 0 < fit.attenuation < 0.01
+
+
+def test_derived_coefficient_readings_are_preferred_and_recover_alpha_and_n(tmp_path):
+    make_detailed(tmp_path / "d", seed=2, derived_h=True)
+    refinement = refine(load_config(write_config(tmp_path, i600_raw(), "i600.yaml")),
+                        tmp_path / "d")
+    for result in refinement.convection:
+        alpha, exponent = TRUTH[result.surface_class]
+        assert result.source.startswith("derived convection coefficient")
+        # errors-in-variables in |ΔT| make the standard errors optimistic: a fixed tolerance
+        assert result.fit.alpha == pytest.approx(alpha, rel=0.03), result.surface_class
+        assert result.fit.exponent == pytest.approx(exponent, abs=0.015), result.surface_class
+    # the ±5 % of a flux-based reading is kept as a floor on the α uncertainty
+    wall = next(p for p in refinement.parameters if p.name == "wall_stack_coefficient")
+    assert wall.provenance["alpha_systematic_std"] > 0
 
 
 # eq. 18, §3.5.3–3.5.4 -------------------------------------------------------
@@ -433,4 +453,6 @@ def test_refine_recovers_the_truth_behind_bpsflow_synth_detailed(tmp_path):
         in_90, in_998 = _covers(refined.parameter(name).distribution, truth[name])
         assert in_998, (name, truth[name], entry["after"])
         inside_90 += in_90
-    assert inside_90 >= len(summary["parameters"]) - 2
+    # log α and n of one class are strongly correlated (about -0.9), so they tend to miss a
+    # 90 % interval together: allow one class pair and one more
+    assert inside_90 >= len(summary["parameters"]) - 3

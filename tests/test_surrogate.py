@@ -258,3 +258,240 @@ def test_synthetic_measurements_on_the_surrogate(tmp_path):
     assert len(measured) == 96
     assert set(measured.columns) >= {"heating_power_w", "zone_air_temperature_c"}
     assert measured["zone_air_temperature_c"].between(-10, 60).all()
+
+
+# Detailed quantities (EnergyPlus output variables by surface and site) -----------
+
+INSIDE = "Surface Inside Face "
+BALANCE = ("Convection Heat Gain Rate per Area", "Conduction Heat Transfer Rate per Area",
+           "Net Surface Thermal Radiation Heat Gain Rate per Area",
+           "Solar Radiation Heat Gain Rate per Area")
+OPAQUE = ("EastWall", "NorthWall", "WestWall", "Ceiling", "Floor", "SouthWall")
+
+
+def _with_outputs(config, wanted: dict[str, tuple[str, str]]):
+    """The config with extra outputs ``name -> (variable, key)`` asked for by every test."""
+    from bpsflow.config import OutputVariable
+
+    for name, (variable, key) in wanted.items():
+        config.outputs[name] = OutputVariable(variable=variable, key=key)
+    for test in config.model.tests:
+        test.outputs = sorted(set(test.outputs) | set(wanted))
+    return config
+
+
+def _wide(tidy: pd.DataFrame) -> pd.DataFrame:
+    return (tidy.drop_duplicates(["instance", "timestamp", "output"])
+            .pivot(index=["instance", "timestamp"], columns="output", values="value"))
+
+
+def _probe_run(config, forcing_of, wanted_terms, n: int = 1):
+    from bpsflow.surrogate.network import FaceProbe
+
+    cell = nominal_cell(config, n=n)
+    forcing = forcing_of(cell)
+    faces = len(cell.opaque) + 1
+    probe = FaceProbe({m: set(wanted_terms) for m in range(faces)}, forcing.days * 24,
+                      forcing.steps_per_hour)
+    result = simulate(cell, build_network(cell), forcing, probe=probe)
+    return cell, probe, result
+
+
+def test_inside_face_balance_closes_at_every_face(tmp_path):
+    """Convection + conduction + net long-wave + solar = 0 at each inside face (seed eq. 15)."""
+    from bpsflow.surrogate.forcing import period_forcing
+    from bpsflow.surrogate.network import FACE_TERMS
+
+    config = _two_day_config(tmp_path, summer=True)
+    config = _with_outputs(config, {f"{s}:{t}": (INSIDE + t, s.upper() if s == "Floor" else s)
+                                    for s in OPAQUE for t in BALANCE})
+    samples = pd.DataFrame({"ground_reflectance": [0.1, 0.4]},
+                           index=pd.RangeIndex(2, name="instance"))
+    wide = _wide(simulate_instances(config, samples)[0])
+    for surface in OPAQUE:
+        terms = wide[[f"{surface}:{t}" for t in BALANCE]]
+        scale = terms.abs().to_numpy().max()
+        assert scale > 1.0, surface                          # the faces do exchange heat
+        np.testing.assert_allclose(terms.sum(axis=1), 0.0, atol=1e-9 * scale, err_msg=surface)
+        # The sun reaches every inside face and nothing is absorbed at night.
+        solar = terms[f"{surface}:{BALANCE[3]}"]
+        assert solar.max() > 0.5 and solar.min() >= 0.0
+    # The window's room-side pane too (its conduction is the flow across the gap).
+    _, probe, _ = _probe_run(config, lambda cell: period_forcing(
+        config, cell, config.model.periods[0], sample_columns(
+            config, pd.DataFrame(index=pd.RangeIndex(1, name="instance")))), FACE_TERMS)
+    window = len(probe.wanted) - 1
+    terms = [probe.values[(window, t)] for t in ("convection", "conduction", "radiation", "solar")]
+    scale = max(np.abs(t).max() for t in terms)
+    assert scale > 10.0
+    np.testing.assert_allclose(sum(terms), 0.0, atol=1e-9 * scale)
+
+
+def test_convection_coefficient_is_the_curve_at_the_face_temperature_difference(config):
+    """At a steady state, h = alpha |T_adjacent - T_face|^n (seed eqs. 16-17) at every face."""
+    from bpsflow.surrogate.network import H_MIN
+
+    boundary = {1: 30.0, 2: 26.0, 3: 14.0}      # guarded spaces warmer and colder than the cell
+    cell, probe, _ = _probe_run(config, lambda cell: constant_forcing(
+        cell, days=20, t_out=0.0, boundary_c=boundary, wind=2.0),
+        ("temperature", "adjacent_air", "convection_coefficient", "convection"))
+    assert cell.gradient[0] > 0.5
+    for m, curve in enumerate([s.inside_curve for s in cell.opaque] + [cell.window.inside_curve]):
+        t_face = probe.values[(m, "temperature")][0, -1]
+        t_adjacent = probe.values[(m, "adjacent_air")][0, -1]
+        h = probe.values[(m, "convection_coefficient")][0, -1]
+        difference = abs(t_adjacent - t_face)
+        assert difference > 0.05, m
+        expected = max(float(curve.c1[0] + curve.c2[0] * difference ** curve.c3[0]), H_MIN)
+        assert h == pytest.approx(expected, rel=1e-6), m
+        assert probe.values[(m, "convection")][0, -1] == pytest.approx(
+            h * (t_adjacent - t_face), rel=1e-6)
+
+
+def test_adjacent_air_follows_the_sampled_gradient(tmp_path):
+    """(T_ceiling air - T_floor air) / (centroid height difference) = gradient x 0.98.
+
+    EnergyPlus's ConstantGradient pattern places a surface at its centroid's
+    non-dimensional height bounded to 0.01..0.99 of the zone height, so the
+    floor and ceiling air lie 0.98 H apart in the pattern, not H (seed eq. 18
+    read on EnergyPlus output gives 0.98 x the gradient).
+    """
+    from bpsflow.surrogate.cell import ZETA_BOUNDS
+
+    config = _two_day_config(tmp_path, summer=False)
+    config = _with_outputs(config, {
+        "ceiling_air": (INSIDE + "Adjacent Air Temperature", "ceiling"),   # keys: any case
+        "floor_air": (INSIDE + "Adjacent Air Temperature", "FLOOR"),
+        "wall_air": (INSIDE + "Adjacent Air Temperature", "NorthWall"),
+        "mean_air": ("Zone Mean Air Temperature", "Cell")})
+    gradients = [0.5, 1.4, 1.875]
+    samples = pd.DataFrame({"stratification_gradient": gradients},
+                           index=pd.RangeIndex(3, name="instance"))
+    wide = _wide(simulate_instances(config, samples)[0])
+    idf = read_idf(config.model.idf)
+    ceiling = idf.find("BuildingSurface:Detailed", "Ceiling").vertices()
+    floor = idf.find("BuildingSurface:Detailed", "Floor").vertices()
+    rise = np.mean([v[2] for v in ceiling]) - np.mean([v[2] for v in floor])
+    share = ZETA_BOUNDS[1] - ZETA_BOUNDS[0]
+    assert share == pytest.approx(0.98)
+    for instance, gradient in enumerate(gradients):
+        rows = wide.loc[instance]
+        estimate = (rows["ceiling_air"] - rows["floor_air"]) / rise
+        np.testing.assert_allclose(estimate, gradient * share, rtol=1e-9)
+        # Mid-height walls sit in the mean air.
+        np.testing.assert_allclose(rows["wall_air"], rows["mean_air"], atol=1e-9)
+
+
+def test_solar_quantities_of_the_site_and_the_facade(tmp_path):
+    """Ground-diffuse on a vertical facade = 0.5 rho GHI; window transmits 0 < tau < tau_n."""
+    config = _two_day_config(tmp_path, summer=True)
+    config = _with_outputs(config, {
+        "ground_wall": ("Surface Outside Face Incident Ground Diffuse Solar Radiation Rate per "
+                        "Area", "SouthWall"),
+        "ground_window": ("Surface Outside Face Incident Ground Diffuse Solar Radiation Rate "
+                          "per Area", "SouthWindow"),
+        "reflected": ("Site Ground Reflected Solar Radiation Rate per Area", "Environment"),
+        "direct": ("Site Direct Solar Radiation Rate per Area", "environment"),
+        "diffuse": ("Site Diffuse Solar Radiation Rate per Area", "Environment"),
+        "altitude": ("Site Solar Altitude Angle", "Environment"),
+        "incident": ("Surface Outside Face Incident Solar Radiation Rate per Area",
+                     "SouthWindow"),
+        "transmitted": ("Surface Window Transmitted Solar Radiation Rate", "SouthWindow")})
+    reflectances = [0.1, 0.35]
+    samples = pd.DataFrame({"ground_reflectance": reflectances, "glazing_dirt_correction": 1.0},
+                           index=pd.RangeIndex(2, name="instance"))
+    wide = _wide(simulate_instances(config, samples)[0])
+    global_horizontal = [wide.loc[i, "reflected"] / rho for i, rho in enumerate(reflectances)]
+    np.testing.assert_allclose(global_horizontal[0], global_horizontal[1], rtol=1e-12)
+    ghi = global_horizontal[0]
+    for i, rho in enumerate(reflectances):
+        for face in ("ground_wall", "ground_window"):
+            np.testing.assert_allclose(wide.loc[i, face], 0.5 * rho * ghi, rtol=1e-12)
+    rows = wide.loc[0]
+    assert ghi.max() > 500.0                                   # a sunny July day
+    # Global horizontal lies between the diffuse part and diffuse + normal beam.
+    assert (ghi >= rows["diffuse"] - 1e-9).all() and (ghi <= rows["diffuse"] + rows["direct"]
+                                                      + 1e-9).all()
+    night = rows["altitude"] < -10.0
+    assert night.sum() > 10 and (rows.loc[night, ["direct", "diffuse", "reflected", "incident",
+                                                  "transmitted"]] == 0.0).all().all()
+    # Transmitted / incident of the window: below the normal-incidence transmittance.
+    glass = read_idf(config.model.idf).find("WindowMaterial:Glazing", "ClearGlass3mm")
+    tau = glass.number("Solar Transmittance at Normal Incidence")
+    rho_glass = glass.number("Front Side Solar Reflectance at Normal Incidence")
+    normal = tau * tau / (1 - rho_glass * rho_glass)           # two panes, inter-reflected
+    sunny = rows["incident"] > 100.0
+    ratio = rows.loc[sunny, "transmitted"] / (rows.loc[sunny, "incident"] * 6.0)
+    assert sunny.sum() > 8
+    assert (ratio > 0.0).all() and (ratio < normal).all()
+    assert ratio.max() > 0.5 * normal
+
+
+def test_sun_position_is_energyplus_s(tmp_path):
+    """Hourly solar altitude as EnergyPlus 25.2 reports it at the San Francisco TMY3 site."""
+    from bpsflow.surrogate.solar import sun_positions
+
+    # Hour-ending means of the 10-minute values, from an EnergyPlus 25.2 run.
+    reference = {"2025-07-09 07:00": 17.3878, "2025-07-09 13:00": 73.8148,
+                 "2025-07-21 18:00": 20.2752, "2025-12-15 09:00": 11.6984,
+                 "2025-12-15 13:00": 28.5662, "2025-12-22 00:00": -73.931}
+    for first, days in (("2025-07-05", 18), ("2025-12-05", 18)):
+        ends = pd.Timestamp(first) + pd.to_timedelta(np.arange(1, days * 144 + 1) * 10,
+                                                     unit="min")
+        zenith, azimuth, beam_zenith, _ = sun_positions(pd.DatetimeIndex(ends), 37.62, -122.40,
+                                                        -8.0)
+        altitude = pd.Series(90.0 - zenith, index=ends)
+        hourly = altitude.groupby(np.arange(len(ends)) // 6).mean()
+        hourly.index = ends[5::6]
+        for stamp, value in reference.items():
+            if pd.Timestamp(stamp) in hourly.index:
+                assert hourly[pd.Timestamp(stamp)] == pytest.approx(value, abs=2e-3), stamp
+        # Morning sun in the east, afternoon in the west.
+        noon = ends.hour == 12
+        assert np.all(azimuth[(ends.hour == 9) & (zenith < 90)] < 180)
+        assert np.all(azimuth[(ends.hour == 15) & (zenith < 90)] > 180)
+        # The beam's sun uses the period's mean declination: in July the real
+        # sun sinks through the period, so it stands lower than the mean first.
+        if first.startswith("2025-07"):
+            first_day, last_day = noon & (ends.day == 5), noon & (ends.day == 22)
+            assert np.all(zenith[first_day] < beam_zenith[first_day])
+            assert np.all(zenith[last_day] > beam_zenith[last_day])
+        one_day = sun_positions(pd.DatetimeIndex(ends), 37.62, -122.40, -8.0, shading_days=1)
+        np.testing.assert_allclose(one_day[2], zenith, atol=1e-9)
+
+
+def test_detailed_outputs_name_bad_variables_and_keys(tmp_path):
+    from bpsflow.errors import BpsflowError
+
+    base = _two_day_config(tmp_path, summer=False)
+    cases = [
+        ({"bad_key": (INSIDE + "Temperature", "EastWal")},
+         ["outputs.bad_key.key", "'EastWal'", "EastWall", "Ceiling", "SouthWindow"]),
+        ({"window_conduction": (INSIDE + BALANCE[1], "SouthWindow")},
+         ["outputs.window_conduction.key", "does not report it for windows", "Floor"]),
+        ({"site_on_a_wall": ("Site Direct Solar Radiation Rate per Area", "SouthWall")},
+         ["outputs.site_on_a_wall.key", "Environment"]),
+        ({"dark_face": ("Surface Outside Face Incident Solar Radiation Rate per Area", "Floor")},
+         ["outputs.dark_face.key", "sun-exposed", "SouthWall", "SouthWindow"]),
+        ({"zone_key": ("Zone Mean Air Temperature", "Room")}, ["outputs.zone_key.key", "Cell"]),
+        ({"unknown": ("Surface Inside Face Beam Radiation Rate", "Floor")},
+         ["outputs.unknown", "Surface Inside Face Beam Radiation Rate",
+          "Surface Inside Face Temperature", "Site Solar Altitude Angle"]),
+    ]
+    for outputs, expected in cases:
+        config = _with_outputs(base.model_copy(deep=True), outputs)
+        with pytest.raises(BpsflowError) as error:
+            simulate_instances(config, pd.DataFrame(index=pd.RangeIndex(1, name="instance")))
+        for text in expected:
+            assert text in str(error.value), (outputs, str(error.value))
+
+
+def test_lumped_walls_report_the_same_values(tmp_path):
+    config = _with_outputs(_two_day_config(tmp_path, summer=False), {
+        f"{wall}_temperature": (INSIDE + "Temperature", wall)
+        for wall in ("EastWall", "westwall", "NORTHWALL", "SouthWall")})
+    wide = _wide(simulate_instances(config, pd.DataFrame(index=pd.RangeIndex(1,
+                                                                             name="instance")))[0])
+    np.testing.assert_array_equal(wide["EastWall_temperature"], wide["westwall_temperature"])
+    np.testing.assert_array_equal(wide["EastWall_temperature"], wide["NORTHWALL_temperature"])
+    assert (wide["EastWall_temperature"] - wide["SouthWall_temperature"]).abs().max() > 0.1

@@ -106,7 +106,7 @@ def corrected(readings: pd.DataFrame | pd.Series, calibration: pd.DataFrame
 
 def reading_variance(sensors: list[str], calibration: pd.DataFrame,
                      reference_std_c: float) -> np.ndarray:
-    """Per-reading error variance ``σ̂_c² + σ_M²`` (°C²) of bias-corrected sensors (seed eq. 12)."""
+    """Error variance ``σ̂_c² + σ_M²`` (°C²) of each bias-corrected reading (seed eq. 12)."""
     return calibration.loc[sensors, "variance_c2"].to_numpy() + reference_std_c ** 2
 
 
@@ -176,7 +176,7 @@ def hourly_frame(frame: pd.DataFrame) -> pd.DataFrame:
 
 def convection_coefficient(surface_c: pd.Series, air_c: pd.Series, conduction_w_m2: pd.Series,
                            radiation_w_m2: pd.Series) -> pd.DataFrame:
-    """The interior convection coefficient at each time step from the heat balance (seed eq. 15–16).
+    """Interior convection coefficient per time step from the heat balance (seed eq. 15–16).
 
     Eq. 15: ``R_ir + R_sw + Q_cond + Q_conv = 0``, so the convective gain of
     the surface is ``Q_conv = −(Q_cond + R)`` (W/m²), and eq. 16:
@@ -201,6 +201,31 @@ def convection_coefficient(surface_c: pd.Series, air_c: pd.Series, conduction_w_
     with np.errstate(divide="ignore", invalid="ignore"):
         h = convection / delta_t
     return pd.DataFrame({"delta_t_c": delta_t, "convection_w_m2": convection, "h_w_m2k": h})
+
+
+def convection_points(surface_c: pd.Series, air_c: pd.Series, h_w_m2k: pd.Series) -> pd.DataFrame:
+    """Convection points from derived coefficient readings (seed eq. 16–17).
+
+    For a laboratory that already applies eq. 15–16 at its logging interval
+    and reports the hour-mean coefficient: the regression needs only the
+    temperature difference next to it.
+
+    Parameters
+    ----------
+    surface_c, air_c : Series
+        Bias-corrected surface and adjacent air temperatures, °C.
+    h_w_m2k : Series
+        Convection coefficient readings, W/m²·K.
+
+    Returns
+    -------
+    DataFrame
+        Like :func:`convection_coefficient`: ``delta_t_c`` (K),
+        ``convection_w_m2`` (``h·ΔT``, W/m²), ``h_w_m2k``.
+    """
+    delta_t = air_c - surface_c
+    return pd.DataFrame({"delta_t_c": delta_t, "convection_w_m2": h_w_m2k * delta_t,
+                         "h_w_m2k": h_w_m2k})
 
 
 def convection_flux_std(conduction_w_m2: pd.Series, radiation_w_m2: pd.Series,
@@ -338,7 +363,7 @@ def fit_convection(delta_t_c: np.ndarray, h_w_m2k: np.ndarray, delta_t_std_c: fl
 
 def gradient_samples(ceiling_air_c: pd.Series, floor_air_c: pd.Series,
                      separation_m: float) -> pd.Series:
-    """Room air temperature gradient per time step, ``G_i = (T_ceiling − T_floor)/h`` (seed eq. 18).
+    """Room air gradient per time step, ``G_i = (T_ceiling − T_floor)/h`` (seed eq. 18).
 
     Parameters
     ----------
@@ -359,7 +384,7 @@ def gradient_samples(ceiling_air_c: pd.Series, floor_air_c: pd.Series,
 
 def irradiance_ratio(numerator_w_m2: pd.Series, denominator_w_m2: pd.Series,
                      min_denominator_w_m2: float, scale: float = 1.0) -> pd.Series:
-    """Per-hour ratio ``numerator / (scale · denominator)`` where the denominator is large enough."""
+    """Per-hour ``numerator / (scale · denominator)`` where the denominator is large enough."""
     keep = denominator_w_m2 >= min_denominator_w_m2
     return (numerator_w_m2[keep] / (scale * denominator_w_m2[keep])).dropna()
 

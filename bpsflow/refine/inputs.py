@@ -50,7 +50,7 @@ SURFACE_C = "surface_c"
 AIR_C = "air_c"
 CONDUCTION = "conduction_w_m2"
 RADIATION = "radiation_w_m2"
-MODEL_H_C = "h_c_w_m2k"  # the model's own coefficient: for checking only, never used
+MODEL_H_C = "h_c_w_m2k"  # derived coefficient readings (optional): preferred when present
 CEILING_AIR = "ceiling_air_c"
 FLOOR_AIR = "floor_air_c"
 WINDOW_TRANSMITTED = "window_transmitted_w_m2"
@@ -144,7 +144,8 @@ def _number(raw: dict, key: str, source: Path, default: float | None = None) -> 
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise BpsflowError(f"key '{key}': expected a number, got {value!r}", source=source) from None
+        raise BpsflowError(f"key '{key}': expected a number, got {value!r}",
+                           source=source) from None
 
 
 def read_metadata(path: Path) -> Metadata:
@@ -182,7 +183,7 @@ def read_metadata(path: Path) -> Metadata:
 
 def locate(path: Path) -> tuple[Path, Path, Path]:
     """(detailed.csv, sensor_calibration.csv, detailed.json) from the CSV or its directory."""
-    path = Path(path)
+    path = Path(path).resolve()
     directory = path if path.is_dir() else path.parent
     detailed = directory / DETAILED_FILE if path.is_dir() else path
     return detailed, directory / CALIBRATION_FILE, directory / METADATA_FILE

@@ -106,6 +106,7 @@ class ConvectionClass:
     fit: est.ConvectionFit | None
     alpha_nominal: float
     exponent_nominal: float
+    source: str = "hourly surface heat balance (eq. 15-16)"
 
 
 @dataclass
@@ -260,14 +261,22 @@ def _convection(detailed: io.Detailed, calibration: pd.DataFrame, idf, min_sigma
             notes.append(f"convection {surface_class}: {curve_name} has a constant term "
                          f"{curve.number('Coefficient1 Constant')}; the regression fits "
                          f"h = α|ΔT|^n without it")
-        points = est.convection_coefficient(
-            est.corrected(frame[names[io.SURFACE_C]], calibration),
-            est.corrected(frame[names[io.AIR_C]], calibration),
-            frame[names[io.CONDUCTION]], frame[names[io.RADIATION]])
-        flux_std = est.convection_flux_std(frame[names[io.CONDUCTION]],
-                                           frame[names[io.RADIATION]],
-                                           meta.heat_flux_relative_std,
-                                           meta.radiation_relative_std)
+        surface_c = est.corrected(frame[names[io.SURFACE_C]], calibration)
+        air_c = est.corrected(frame[names[io.AIR_C]], calibration)
+        derived = io.class_column(surface_class, io.MODEL_H_C)
+        from_readings = derived in frame.columns
+        if from_readings:
+            # The laboratory's coefficient from its per-step balance: an hourly ratio of
+            # hourly means is biased when ΔT is small or changes within the hour.
+            points = est.convection_points(surface_c, air_c, frame[derived])
+            flux_std = 0.0
+        else:
+            points = est.convection_coefficient(surface_c, air_c, frame[names[io.CONDUCTION]],
+                                                frame[names[io.RADIATION]])
+            flux_std = est.convection_flux_std(frame[names[io.CONDUCTION]],
+                                               frame[names[io.RADIATION]],
+                                               meta.heat_flux_relative_std,
+                                               meta.radiation_relative_std)
         points["used"] = est.usable_convection(points, delta_t_std, flux_std, alpha_nominal,
                                                exponent_nominal, min_sigmas)
         fit = None
@@ -282,6 +291,8 @@ def _convection(detailed: io.Detailed, calibration: pd.DataFrame, idf, min_sigma
         results.append(ConvectionClass(
             surface_class=surface_class, surface=surface, curve=curve_name, points=points,
             delta_t_std_c=delta_t_std, min_delta_t_c=min_sigmas * delta_t_std, fit=fit,
+            source=("derived convection coefficient readings (per-step heat balance, eq. 15-16, "
+                    "hour means)" if from_readings else "hourly surface heat balance (eq. 15-16)"),
             alpha_nominal=alpha_nominal, exponent_nominal=exponent_nominal))
     return results
 
@@ -299,7 +310,7 @@ def _convection_parameters(config: Config, detailed: io.Detailed,
             continue
         seen.add(result.curve.upper())
         fit = result.fit
-        common = {"method": "surface heat balance, OLS of log h on log|dT|, Newey-West "
+        common = {"method": f"{result.source}, OLS of log h on log|dT|, Newey-West "
                             "standard errors",
                   "equation": "seed eq. 15-17",
                   "source": str(detailed.detailed_path),
@@ -307,8 +318,14 @@ def _convection_parameters(config: Config, detailed: io.Detailed,
                   "n": fit.points, "r_squared": round(fit.r_squared, 4),
                   "residual_std_log_h": round(fit.residual_std, 4),
                   "estimate_correlation": round(fit.correlation, 4)}
+        # Table 3.2's ±5 % on a heat-flux or derived-h reading may be a constant calibration
+        # error of that sensor rather than per-reading noise: α cannot be known better than
+        # that, however many hours are averaged, so it adds in quadrature.
+        systematic = fit.alpha * detailed.metadata.heat_flux_relative_std
+        alpha_std = float(np.hypot(fit.alpha_std_error, systematic))
+        common["alpha_systematic_std"] = _r(systematic)
         for field_name, what, value, std in (
-                ("Coefficient2 Constant", "alpha", fit.alpha, fit.alpha_std_error),
+                ("Coefficient2 Constant", "alpha", fit.alpha, alpha_std),
                 ("Coefficient3 Constant", "n", fit.exponent, fit.exponent_std_error)):
             parameters = parameters_targeting(config, "Curve:Exponent", field_name, result.curve)
             if not parameters:
@@ -365,6 +382,10 @@ def _gradient_parameters(config: Config, detailed: io.Detailed, gradient: pd.Ser
         skipped.append(f"gradient estimated (median {gradient.median():.4g} K/m) but no "
                        f"parameter targets RoomAir:TemperaturePattern:ConstantGradient field "
                        f"'Temperature Gradient'; skipped")
+    gradient = gradient.dropna()
+    if parameters and gradient.empty:
+        skipped.append("no hour has both ceiling and floor air readings; gradient not refined")
+        return []
     refined = []
     for parameter in parameters:
         values = in_parameter_units(gradient.to_numpy(), parameter.mode,
@@ -488,11 +509,13 @@ def _glazing(config: Config, detailed: io.Detailed, hourly: pd.DataFrame, idf,
         "bias_single_pane": single - tau0,
         "relative_bias_single_pane": single / tau0 - 1,
         "bias_explanation": (
-            "negative: off-normal incidence and diffuse light transmit less than beam at normal "
-            "incidence. The estimate also folds in the dirt correction factor (the data identify "
-            "transmittance x dirt, not each). The model has no frames or dividers, so unlike "
-            "the source's experiment (its 'frames and dividers' reading) none of the bias here "
-            "comes from them."),
+            "negative: off-normal incidence and diffuse sky and ground light transmit less than "
+            "beam at normal incidence (the summer ratio, with the sun high above the south "
+            "window, is lower than the winter one). The estimate also folds in the dirt "
+            "correction factor, which EnergyPlus applies to the outer pane: the data identify "
+            "tau^2 x dirt, so the single-pane inversion gives tau x sqrt(dirt). The model has no "
+            "frames or dividers, so unlike the source's experiment (its 'frames and dividers' "
+            "reading) none of the bias here comes from them."),
     }
     for parameter in parameters:
         nominal = parameter_nominal(idf, parameter)

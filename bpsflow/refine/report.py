@@ -78,7 +78,7 @@ def write_boundary(refinement: Refinement, path: Path) -> Path:
 
 
 def write_config(refinement: Refinement, path: Path) -> Path:
-    """``refined.yaml``: extends the baseline, own run directory, refined parameters and boundary."""
+    """``refined.yaml``: extends the baseline; own run dir, refined parameters and boundary."""
     config = refinement.config
     folder = path.parent
     raw: dict = {"extends": relative_file(config.source, folder),
@@ -286,7 +286,8 @@ def plot_convection(refinement: Refinement, path: Path) -> Path:
             grid = np.linspace(x[used].min(), x[used].max(), 50)
             fit = result.fit
             ax.plot(grid, fit.log_alpha + fit.exponent * grid, color="tab:red",
-                    label=f"log α {fit.log_alpha:.3f}, n {fit.exponent:.3f}, R² {fit.r_squared:.2f}")
+                    label=f"log α {fit.log_alpha:.3f}, n {fit.exponent:.3f}, "
+                          f"R² {fit.r_squared:.2f}")
             ax.plot(grid, np.log(result.alpha_nominal) + result.exponent_nominal * grid,
                     color="k", ls=":", label="IDF nominal")
         ax.set_title(f"{result.surface_class} ({result.curve})", fontsize=9)

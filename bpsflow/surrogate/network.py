@@ -230,30 +230,36 @@ class FaceProbe:
                g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict, step: int,
                k: int) -> None:
         """Add one step's values (``step`` in the period, ``k`` in its day)."""
-        net, cell = stepper.net, stepper.cell
-        faces = net.inside + [net.pane_in]
         hour = step // self.steps_per_hour
         weight = 1.0 / self.steps_per_hour
         for m, terms in self.wanted.items():
-            node = faces[m]
-            area = stepper.opaque_areas[m]
-            t_face = new[:, node]
-            t_adjacent = new[:, net.AIR] + cell.gradient * stepper.dz[m]
-            h = g_pairs[:, 2 * m] / area
-            values = {"temperature": lambda: t_face,
-                      "adjacent_air": lambda: t_adjacent,
-                      "convection_coefficient": lambda: h,
-                      "convection": lambda: h * (t_adjacent - t_face),
-                      "radiation": lambda: g_pairs[:, 2 * m + 1] / area * (new[:, net.STAR]
-                                                                           - t_face),
-                      "solar": lambda: inputs["source"][:, k, node] / area,
-                      "conduction": lambda: self._conduction(stepper, m, old, new, g_pairs,
-                                                             capacity, inputs, k) / area}
             for term in terms:
                 total = self.values.get((m, term))
                 if total is None:
-                    total = self.values[(m, term)] = np.zeros((net.n, self.hours))
-                total[:, hour] += weight * values[term]()
+                    total = self.values[(m, term)] = np.zeros((stepper.net.n, self.hours))
+                total[:, hour] += weight * self._term(term, stepper, m, old, new, g_pairs,
+                                                      capacity, inputs, k)
+
+    def _term(self, term: str, stepper: "_Stepper", m: int, old: np.ndarray, new: np.ndarray,
+              g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict, k: int) -> np.ndarray:
+        """One quantity of face ``m`` at the end of a step, ``(n,)``."""
+        net = stepper.net
+        node = (net.inside + [net.pane_in])[m]
+        area = stepper.opaque_areas[m]
+        t_face = new[:, node]
+        if term == "temperature":
+            return t_face
+        if term == "solar":
+            return inputs["source"][:, k, node] / area
+        if term == "radiation":
+            return g_pairs[:, 2 * m + 1] / area * (new[:, net.STAR] - t_face)
+        if term == "conduction":
+            return self._conduction(stepper, m, old, new, g_pairs, capacity, inputs, k) / area
+        t_adjacent = new[:, net.AIR] + stepper.cell.gradient * stepper.dz[m]
+        if term == "adjacent_air":
+            return t_adjacent
+        h = g_pairs[:, 2 * m] / area
+        return h if term == "convection_coefficient" else h * (t_adjacent - t_face)
 
     @staticmethod
     def _conduction(stepper: "_Stepper", m: int, old: np.ndarray, new: np.ndarray,

@@ -1,0 +1,331 @@
+"""The calibration workflow of one data scenario: design, emulator, calibration, held-out test.
+
+1. **Design** (:mod:`~bpsflow.calibration.design`): an LHD over θ, run over the
+   calibration period on the config's backend (resumable), paired with the
+   measurements at the scenario's resolution; calibration rows subsampled.
+2. **Emulator** (:mod:`~bpsflow.calibration.emulator`): MLE hyperparameters,
+   the conditional on every simulated value, hold-out test on 10 % of runs.
+3. **Deterministic baseline** (:mod:`~bpsflow.calibration.deterministic`) —
+   always: it is cheap and starts the sampler.
+4. **Bayesian calibration** (:mod:`~bpsflow.calibration.bayes`): NUTS,
+   convergence diagnostics, the posterior predictive on the held-out rows.
+5. **Physical check**: posterior draws (and the deterministic optimum) re-run
+   on the physical model; every prediction scored on the held-out days at
+   daily and hourly resolution (:mod:`~bpsflow.calibration.heldout`).
+6. **Report** (:mod:`~bpsflow.calibration.report`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from rich.console import Console
+from scipy import special
+
+from bpsflow.calibration import design as design_module
+from bpsflow.calibration.design import Paired
+from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effects, standardise_unit
+from bpsflow.calibration.settings import CalibrationSettings, Scenario
+from bpsflow.config import Config, Parameter
+from bpsflow.errors import BpsflowError
+
+console = Console(stderr=True)
+
+POSTERIOR_RUNS_DIR = "posterior_runs"
+PREDICTIVE_DRAWS = 200
+
+
+@dataclass
+class Design:
+    """The design runs shared by every scenario."""
+
+    parameters: list[Parameter]
+    unit: np.ndarray              # (runs, k) prior-CDF values, row = instance
+    results: pd.DataFrame         # tidy results of every run
+    backend: str
+    seconds: float
+
+
+@dataclass
+class CalibrationRun:
+    """Everything one scenario's calibration produced (what the report writes)."""
+
+    scenario: Scenario
+    method: str
+    backend: str
+    parameters: list[Parameter]
+    paired: Paired                 # selected calibration rows + held-out rows
+    x: pd.DataFrame
+    emulator: Emulator
+    obs_rows: np.ndarray
+    heldout_rows: np.ndarray
+    deterministic: object
+    effects: np.ndarray
+    active: np.ndarray
+    posterior: object | None = None
+    convergence: object | None = None
+    koh: object | None = None
+    unit_draws: np.ndarray | None = None
+    predictive: dict | None = None        # held-out GP predictive (output units)
+    physical: dict = field(default_factory=dict)   # resolution -> Paired of re-runs
+    prior: dict = field(default_factory=dict)      # resolution -> Paired of design runs
+    heldout: pd.DataFrame | None = None
+    truth: dict[str, float] | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def settings_of(config: Config) -> CalibrationSettings:
+    """The config's ``calibration:`` section (defaults when absent)."""
+    return config.calibration or CalibrationSettings()
+
+
+def default_outputs(config: Config) -> list[str]:
+    """Every output some test reports, in config order."""
+    seen: list[str] = []
+    for test in config.model.tests:
+        seen += [o for o in test.outputs if o not in seen]
+    return seen
+
+
+def check_scenario(config: Config, scenario: Scenario, where: str) -> None:
+    for i, output in enumerate(scenario.outputs):
+        if output not in config.outputs:
+            raise BpsflowError(f"{where}.outputs[{i}]: unknown output '{output}', expected one "
+                               f"of {sorted(config.outputs)}", source=config.source)
+
+
+def prepare_design(config: Config, settings: CalibrationSettings, design_dir: Path,
+                   backend: str, jobs: int | None = None, show_progress: bool = True) -> Design:
+    """Draw the LHD over θ and run it (finished runs of the same design are reused)."""
+    started = time.perf_counter()
+    parameters = design_module.calibration_parameters(config, settings)
+    unit = design_module.design_unit(settings, len(parameters))
+    samples = design_module.samples_frame(config, parameters, unit)
+    console.print(f"design: {len(samples)} runs over {len(parameters)} calibration parameters "
+                  f"({', '.join(p.name for p in parameters)}) on {backend}")
+    results = design_module.run_samples(config, samples, design_dir, backend=backend, jobs=jobs,
+                                        show_progress=show_progress)
+    return Design(parameters=parameters, unit=unit, results=results, backend=backend,
+                  seconds=time.perf_counter() - started)
+
+
+def measured_outputs(config: Config, measured: pd.DataFrame) -> list[str]:
+    """Outputs of the tests that the measured file has (scored on the held-out days)."""
+    return [o for o in default_outputs(config) if o in measured.columns]
+
+
+def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: Scenario,
+                       design: Design, measured: pd.DataFrame, measured_source: Path | None,
+                       method: str, out_dir: Path, jobs: int | None = None,
+                       truth: dict[str, float] | None = None,
+                       show_progress: bool = True) -> CalibrationRun:
+    """Calibrate to one scenario's data and test the result on the held-out days."""
+    from bpsflow.calibration import deterministic as det
+
+    timings: dict[str, float] = {"design_seconds": design.seconds}
+    started = time.perf_counter()
+    parameters = design.parameters
+    paired_all = design_module.pair(config, design.results, measured, scenario.outputs,
+                                    scenario.resolution, settings.holdout_days,
+                                    settings.idle_fraction, measured_source)
+    paired = design_module.select_observations(paired_all, settings.max_observations,
+                                               settings.observation_seed)
+    names = design_module.variable_input_names(scenario)
+    x = design_module.variable_inputs(config, paired.rows, scenario.resolution, names,
+                                      scenario.outputs)
+    obs_rows = np.flatnonzero((paired.rows["split"] == "calibration").to_numpy())
+    heldout_rows = np.flatnonzero((paired.rows["split"] == "heldout").to_numpy())
+    console.print(f"[{scenario.name}] {len(obs_rows)} calibration and {len(heldout_rows)} "
+                  f"held-out {scenario.resolution} rows of {', '.join(scenario.outputs)}")
+
+    em = settings.emulator
+    emulator = fit_emulator(x, paired.rows["output"], paired.simulated,
+                            design.unit[paired.instances], points=em.points,
+                            test_fraction=em.test_fraction, restarts=em.restarts,
+                            random_state=em.seed)
+    timings["emulator_seconds"] = time.perf_counter() - started
+    if emulator.test is not None:
+        console.print(f"[{scenario.name}] emulator: hold-out R² {emulator.test.r2:.4f} "
+                      f"({len(emulator.test.test_runs)} runs), MLE fit "
+                      f"{emulator.hyper.fit_seconds:.1f} s")
+
+    outputs_obs = paired.rows["output"].to_numpy()[obs_rows]
+    observed = paired.observed[obs_rows]
+    grid = emulator.grid
+
+    if settings.deterministic.model == "simulator":
+        predict = _simulator_predictor(config, parameters, paired, obs_rows, measured,
+                                       measured_source, scenario, settings, design.backend)
+    else:
+        def predict(unit: np.ndarray) -> np.ndarray:
+            mean = grid.predict_mean(standardise_unit(unit))[:, obs_rows]
+            return emulator.scaling.y_back(mean, outputs_obs)
+    started = time.perf_counter()
+    optimum = det.calibrate(predict, observed, outputs_obs, len(parameters), settings.deterministic)
+    timings["deterministic_seconds"] = time.perf_counter() - started
+    console.print(f"[{scenario.name}] deterministic optimum: objective {optimum.objective:.4g} "
+                  f"({optimum.evaluations} evaluations, {optimum.seconds:.1f} s)")
+
+    effects = parameter_effects(grid, obs_rows, random_state=em.seed)
+    active = np.flatnonzero(effects >= settings.bayes.screen_effect)
+    run = CalibrationRun(scenario=scenario, method=method, backend=design.backend,
+                         parameters=parameters, paired=paired, x=x, emulator=emulator,
+                         obs_rows=obs_rows, heldout_rows=heldout_rows, deterministic=optimum,
+                         effects=effects, active=active, truth=truth, timings=timings)
+    if method == "bayes":
+        _bayes(run, settings, show_progress)
+    _physical_check(run, config, settings, design, measured, measured_source, out_dir, jobs,
+                    show_progress)
+    return run
+
+
+def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bool) -> None:
+    from bpsflow.calibration import bayes
+
+    bs = settings.bayes
+    if len(run.active) == 0:
+        raise BpsflowError("calibration: no calibration parameter has an effect on the "
+                           f"emulated outputs above bayes.screen_effect = {bs.screen_effect}; "
+                           "the data cannot inform any of them")
+    screened = [run.parameters[i].name for i in np.setdiff1d(np.arange(len(run.parameters)),
+                                                             run.active)]
+    if screened:
+        console.print(f"[{run.scenario.name}] not sampled (effect < {bs.screen_effect:g} "
+                      f"standardised units; posterior = prior): {', '.join(screened)}")
+    emulator = run.emulator
+    outputs_obs = run.paired.rows["output"].to_numpy()[run.obs_rows]
+    y = emulator.scaling.y(run.paired.observed[run.obs_rows], outputs_obs)
+    data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs)
+    z_start = special.ndtri(np.clip(run.deterministic.unit, 1e-6, 1 - 1e-6)) \
+        if bs.init == "deterministic" else None
+    init = bayes.initial_values(data, z_start, bs.chains, bs.seed)
+    console.print(f"[{run.scenario.name}] NUTS: {bs.chains} chains x ({bs.warmup} warm-up + "
+                  f"{bs.samples}) draws, {len(run.active)} calibration parameters, "
+                  f"{len(y)} observations")
+    posterior = bayes.sample_posterior(data, bs, init, progress=show_progress)
+    labels = {"z": [run.parameters[i].name for i in run.active],
+              "log_discrepancy_lengthscale": (list(emulator.scaling.x_columns) if bs.ard
+                                              else ["log_discrepancy_lengthscale"])}
+    convergence = bayes.assess(posterior, labels, bs)
+    run.posterior, run.convergence, run.koh = posterior, convergence, data
+    run.timings["mcmc_seconds"] = posterior.seconds
+    run.unit_draws = bayes.unit_draws(data, posterior, random_state=bs.seed)
+    flat = bayes.flat_draws(posterior)
+    pick = np.linspace(0, len(run.unit_draws) - 1,
+                       min(PREDICTIVE_DRAWS, len(run.unit_draws))).astype(int)
+    started = time.perf_counter()
+    means, samples = bayes.predictive(
+        emulator.grid, run.obs_rows, run.heldout_rows, y, run.unit_draws[pick],
+        flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
+        flat["log_noise_std"][pick], bs.ard, random_state=bs.seed)
+    outputs_h = run.paired.rows["output"].to_numpy()[run.heldout_rows]
+    run.predictive = {"mean": emulator.scaling.y_back(means, outputs_h),
+                      "samples": emulator.scaling.y_back(samples, outputs_h)}
+    run.timings["predictive_seconds"] = time.perf_counter() - started
+    verdict = "converged" if convergence.converged else \
+        "NOT converged: " + "; ".join(convergence.reasons)
+    console.print(f"[{run.scenario.name}] NUTS {posterior.seconds:.1f} s "
+                  f"({posterior.chain_method} chains): R-hat max {convergence.rhat_max:.4f}, "
+                  f"ESS bulk/tail min {convergence.ess_bulk_min:.0f}/"
+                  f"{convergence.ess_tail_min:.0f}, {posterior.num_steps.mean():.1f} steps per "
+                  f"iteration, {convergence.divergences} divergences: {verdict}")
+
+
+def _simulator_predictor(config, parameters, paired: Paired, obs_rows, measured, source,
+                         scenario, settings, backend):
+    """Predict the calibration rows by running the surrogate (deterministic ``model: simulator``)."""
+    if backend != "surrogate":
+        raise BpsflowError("calibration.deterministic.model: 'simulator' needs the surrogate "
+                           f"backend (each objective evaluation is a simulation), not {backend}; "
+                           "use model: emulator", source=config.source)
+    from bpsflow.boundary import ensure_sequences
+    from bpsflow.surrogate import simulate_instances
+
+    keys = paired.rows.iloc[obs_rows][["time", "output"]]
+    ensure_sequences(config)
+
+    def predict(unit: np.ndarray) -> np.ndarray:
+        samples = design_module.samples_frame(config, parameters, unit)
+        tidy, _ = simulate_instances(config, samples, config.run_dir)
+        sim = design_module.pair(config, tidy, measured, scenario.outputs, scenario.resolution,
+                                 settings.holdout_days, settings.idle_fraction, source)
+        index = pd.MultiIndex.from_frame(sim.rows[["time", "output"]])
+        rows = index.get_indexer(pd.MultiIndex.from_frame(keys))
+        return sim.simulated[rows].T
+
+    return predict
+
+
+def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSettings,
+                    design: Design, measured: pd.DataFrame, source, out_dir: Path,
+                    jobs: int | None, show_progress: bool) -> None:
+    """Re-run posterior draws and the deterministic optimum; score everything held out."""
+    from bpsflow.calibration import heldout
+
+    started = time.perf_counter()
+    units = {o: config.outputs[o].unit for o in config.outputs}
+    outputs = measured_outputs(config, measured)
+    unit_runs = []
+    if run.unit_draws is not None:
+        pick = np.linspace(0, len(run.unit_draws) - 1,
+                           min(settings.posterior_runs, len(run.unit_draws))).astype(int)
+        unit_runs.append(run.unit_draws[pick])
+    unit_runs.append(run.deterministic.unit[None, :])
+    unit = np.vstack(unit_runs)
+    samples = design_module.samples_frame(config, run.parameters, unit)
+    console.print(f"[{run.scenario.name}] physical check: {len(samples)} run(s) "
+                  f"({len(samples) - 1} posterior draws + the deterministic optimum)")
+    results = design_module.run_samples(config, samples, out_dir / POSTERIOR_RUNS_DIR,
+                                        backend=design.backend, jobs=jobs, fresh=True,
+                                        show_progress=show_progress)
+    records = []
+    for resolution in ("daily", "hourly"):
+        rerun = design_module.pair(config, results, measured, outputs, resolution,
+                                   settings.holdout_days, settings.idle_fraction,
+                                   source).split("heldout")
+        prior = design_module.pair(config, design.results, measured, outputs, resolution,
+                                   settings.holdout_days, settings.idle_fraction,
+                                   source).split("heldout")
+        run.physical[resolution], run.prior[resolution] = rerun, prior
+        out = rerun.rows["output"].to_numpy()
+        records += heldout.score("prior", resolution, prior.rows["output"].to_numpy(),
+                                 prior.observed, prior.simulated, units)
+        if run.unit_draws is not None:
+            records += heldout.score("bayes_physical", resolution, out, rerun.observed,
+                                     rerun.simulated[:, :-1], units)
+        records += heldout.score("deterministic_physical", resolution, out, rerun.observed,
+                                 rerun.simulated[:, -1:], units)
+        if run.predictive is not None and resolution == run.scenario.resolution:
+            rows = run.paired.rows.iloc[run.heldout_rows]
+            records += heldout.score("bayes_gp", resolution, rows["output"].to_numpy(),
+                                     run.paired.observed[run.heldout_rows],
+                                     run.predictive["samples"].T, units)
+    order = {"prior": 0, "bayes_gp": 1, "bayes_physical": 2, "deterministic_physical": 3}
+    frame = heldout.table(records)
+    frame["_order"] = frame["model"].map(order)
+    run.heldout = (frame.sort_values(["resolution", "output", "_order"])
+                   .drop(columns="_order").reset_index(drop=True))
+    run.timings["physical_check_seconds"] = time.perf_counter() - started
+
+
+def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
+    """True θ values from ``bpsflow synth``'s ``truth.json`` or a truth YAML (``values:``)."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise BpsflowError(f"truth file not found: {path}")
+    try:
+        raw = json.loads(path.read_text()) if path.suffix == ".json" else \
+            yaml.safe_load(path.read_text())
+    except (ValueError, yaml.YAMLError) as exc:
+        raise BpsflowError(f"cannot read the truth file: {exc}", source=path) from None
+    values = raw.get("values") if isinstance(raw, dict) else None
+    if not isinstance(values, dict):
+        raise BpsflowError("expected a mapping 'values: {parameter: value}'", source=path)
+    return {p.name: float(values[p.name]) for p in parameters if p.name in values}
