@@ -38,8 +38,9 @@ bench: $(STAMP)
 	$(PY) bench/metrics_bench.py
 	@echo "figures written to bench/results.json"
 
-# The Table 3.5-style validation study (seed §3.6): baseline and refined ensembles
-# against the synthetic measurements of the truth instance.
+# The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed
+# synthetic measurements of the truth instance, refined inputs from them (bpsflow refine),
+# the refined ensemble, and validation of both against the truth's measurements.
 # `make study` runs it on the surrogate (seconds); `make study-energyplus` on EnergyPlus.
 STUDY_SAMPLES ?= 2000
 study: $(STAMP)
@@ -50,12 +51,13 @@ study-energyplus: $(STAMP)
 
 _study:
 	$(BPS) sample configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --samples $(STUDY_SAMPLES) --force
-	$(BPS) synth configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --truth configs/i600_truth.yaml --backend $(BACKEND)
+	$(BPS) synth configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --truth configs/i600_truth.yaml --backend $(BACKEND) --detailed
 	$(BPS) run configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --backend $(BACKEND) --jobs $(JOBS) --no-progress
-	$(BPS) sample configs/i600_refined.yaml --run-dir runs/study$(SUFFIX)/refined --samples $(STUDY_SAMPLES) --force
-	$(BPS) run configs/i600_refined.yaml --run-dir runs/study$(SUFFIX)/refined --backend $(BACKEND) --jobs $(JOBS) --no-progress
-	$(BPS) validate configs/i600_refined.yaml --run-dir runs/study$(SUFFIX)/refined --measured runs/study$(SUFFIX)/baseline/truth/measured.csv --invalid runs/study$(SUFFIX)/baseline
-	@echo "table: runs/study$(SUFFIX)/refined/validation.csv; figures: runs/study$(SUFFIX)/refined/figures/"
+	$(BPS) refine configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --detailed runs/study$(SUFFIX)/baseline/truth --out runs/study$(SUFFIX)/refine
+	$(BPS) sample runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --samples $(STUDY_SAMPLES) --force
+	$(BPS) run runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --backend $(BACKEND) --jobs $(JOBS) --no-progress
+	$(BPS) validate runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --measured runs/study$(SUFFIX)/baseline/truth/measured.csv --invalid runs/study$(SUFFIX)/baseline
+	@echo "refined inputs: runs/study$(SUFFIX)/refine/refine.json; table: runs/study$(SUFFIX)/refined/validation.csv; figures: runs/study$(SUFFIX)/refined/figures/"
 
 clean:
 	rm -rf runs bench/work .pytest_cache
