@@ -3,7 +3,8 @@
 Runs every command without EnergyPlus (``backend: surrogate``, or ``auto``
 when no EnergyPlus is found), sharing parameter names, tests and outputs
 with the EnergyPlus model. See :mod:`bpsflow.surrogate.network` for the
-model structure.
+model structure and :mod:`bpsflow.surrogate.outputs` for the EnergyPlus
+output variables (zone, inside and outside faces, site) it reports.
 """
 
 from bpsflow.surrogate.run import (ignored_targets, run_surrogate, simulate_instances,
