@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(PY) bench/surrogate_bench.py
 	$(PY) -m pip install --quiet scoringrules   # reference CRPS, for the benchmark only
 	$(PY) bench/metrics_bench.py
+	$(PY) bench/refine_bench.py --truths 4
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed

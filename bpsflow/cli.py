@@ -430,6 +430,56 @@ def refine(config: Path = ConfigArg,
                   f"figures in {out / 'figures'}")
 
 
+@app.command()
+@_friendly
+def calibrate(config: Path = ConfigArg,
+              measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
+              method: str = typer.Option("bayes", help="bayes (Kennedy-O'Hagan, NUTS; the "
+                                         "deterministic baseline runs too) or deterministic."),
+              scenarios: bool = typer.Option(False, "--scenarios", help="Run every scenario of "
+                                             "calibration.scenarios and compare them."),
+              outputs: Optional[str] = typer.Option(None, help="Override calibration.outputs "
+                                                    "(comma-separated)."),
+              resolution: Optional[str] = typer.Option(None, help="Override calibration."
+                                                       "resolution: daily or hourly."),
+              chains: Optional[int] = typer.Option(None, help="Override calibration.bayes.chains."),
+              warmup: Optional[int] = typer.Option(None, help="Override calibration.bayes.warmup."),
+              samples: Optional[int] = typer.Option(None, help="Override calibration.bayes.samples."),
+              runs: Optional[int] = typer.Option(None, help="Override calibration.design.runs."),
+              truth: Optional[Path] = typer.Option(None, help="True parameter values (synth's "
+                                                   "truth.json): report whether 90 % intervals "
+                                                   "cover them."),
+              allow_unconverged: bool = typer.Option(False, help="Exit 0 even when NUTS has not "
+                                                     "converged (R-hat, ESS, divergences)."),
+              out: Optional[Path] = typer.Option(None, help="Output folder (default "
+                                                 "RUN_DIR/calibration)."),
+              backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+              jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes "
+                                                 "for the simulations."),
+              run_dir: Optional[Path] = RunDirOption,
+              no_progress: bool = typer.Option(False, help="No progress bars.")) -> None:
+    """Calibrate to measured data (Kennedy-O'Hagan or deterministic); test on held-out days."""
+    from bpsflow.calibration.command import apply_overrides, calibrate as run_calibration
+    from bpsflow.calibration.workflow import settings_of
+
+    cfg = _load(config, run_dir)
+    settings = apply_overrides(settings_of(cfg),
+                               outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
+                               resolution=resolution, chains=chains, warmup=warmup,
+                               samples=samples, runs=runs)
+    outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
+                              out=out.resolve() if out else None, backend=backend, jobs=jobs,
+                              truth_path=truth, settings=settings, show_progress=not no_progress,
+                              console=console)
+    if outcome.unconverged:
+        err_console.print("[bold red]not converged:[/bold red] " + " | ".join(outcome.unconverged)
+                          + ("" if allow_unconverged else
+                             " (more warm-up/samples, or --allow-unconverged to accept)"),
+                          highlight=False, soft_wrap=True)
+        if not allow_unconverged:
+            raise typer.Exit(code=1)
+
+
 def main() -> None:  # pragma: no cover
     app(prog_name="bpsflow")
 

@@ -76,6 +76,7 @@ class CalibrationRun:
     prior: dict = field(default_factory=dict)      # resolution -> Paired of design runs
     heldout: pd.DataFrame | None = None
     truth: dict[str, float] | None = None
+    units: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
 
 
@@ -176,7 +177,8 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
     run = CalibrationRun(scenario=scenario, method=method, backend=design.backend,
                          parameters=parameters, paired=paired, x=x, emulator=emulator,
                          obs_rows=obs_rows, heldout_rows=heldout_rows, deterministic=optimum,
-                         effects=effects, active=active, truth=truth, timings=timings)
+                         effects=effects, active=active, truth=truth, timings=timings,
+                         units={o: config.outputs[o].unit for o in config.outputs})
     if method == "bayes":
         _bayes(run, settings, show_progress)
     _physical_check(run, config, settings, design, measured, measured_source, out_dir, jobs,
