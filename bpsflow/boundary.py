@@ -23,6 +23,7 @@ from scipy import stats
 
 from bpsflow.config import Boundary, Config, period_dates
 from bpsflow.errors import BpsflowError
+from bpsflow.tables import read_table
 
 SEQUENCES_FILE = "boundary_sequences.npz"
 
@@ -30,14 +31,8 @@ SEQUENCES_FILE = "boundary_sequences.npz"
 @lru_cache(maxsize=4)
 def read_boundary_file(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     """Read the measured boundary temperatures (one row per hour of the year, °C)."""
-    try:
-        frame = pd.read_csv(path)
-    except Exception as exc:  # pandas raises many parser errors
-        raise BpsflowError(f"cannot parse the boundary temperature file: {exc}", source=path) from None
-    missing = [c for c in columns if c not in frame.columns]
-    if missing:
-        raise BpsflowError(f"boundary temperature file lacks column(s) {missing}; it has "
-                           f"{list(frame.columns)} (model.boundary.surfaces.*.column)", source=path)
+    frame = read_table(path, columns, "boundary temperature",
+                       where="model.boundary.surfaces.*.column", numeric_columns=columns)
     if len(frame) not in (8760, 8784):
         raise BpsflowError(f"expected one row per hour of a year (8760), found {len(frame)}",
                            source=path)

@@ -49,6 +49,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, OutputVariable, Test, period_dates
 from bpsflow.errors import BpsflowError
+from bpsflow.tables import read_table
 
 DETAILED_FILE = "detailed.csv"
 CALIBRATION_FILE = "sensor_calibration.csv"
@@ -785,27 +786,7 @@ def write_detailed(out_dir: Path, readings: pd.DataFrame, calibration: pd.DataFr
 
 
 def _read_table(path: Path, required: Sequence[str], what: str) -> pd.DataFrame:
-    path = Path(path)
-    if not path.is_file():
-        raise BpsflowError(f"{what} file not found: {path}")
-    try:
-        frame = pd.read_csv(path)
-    except Exception as exc:  # pandas raises many parser errors
-        raise BpsflowError(f"cannot parse the {what} file: {exc}", source=path) from None
-    missing = [c for c in required if c not in frame.columns]
-    if missing:
-        raise BpsflowError(f"missing column(s) {missing} (expected the {what} columns: "
-                           f"{', '.join(required)})", source=path)
-    for column in frame.columns:
-        if column == "timestamp":
-            continue
-        numbers = pd.to_numeric(frame[column], errors="coerce")
-        bad = numbers.isna() & frame[column].notna()
-        if bad.any():
-            raise BpsflowError(f"column '{column}', row {int(bad.to_numpy().argmax()) + 2}: "
-                               f"'{frame[column][bad].iloc[0]}' is not a number", source=path)
-        frame[column] = numbers
-    return frame
+    return read_table(path, required, what)
 
 
 def read_detailed(path: Path, surfaces: Iterable[str] | None = None) -> pd.DataFrame:
