@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed
 JOBS   ?= 2
 DEMO_SAMPLES ?= 200
 
-.PHONY: install demo test bench study study-energyplus clean
+.PHONY: install demo test bench study study-energyplus calibrate-demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(PY) bench/surrogate_bench.py
 	$(PY) -m pip install --quiet scoringrules   # reference CRPS, for the benchmark only
 	$(PY) bench/metrics_bench.py
+	$(PY) bench/calibration_bench.py
 	$(PY) bench/refine_bench.py --truths 4
 	@echo "figures written to bench/results.json"
 
@@ -59,6 +60,14 @@ _study:
 	$(BPS) run runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --backend $(BACKEND) --jobs $(JOBS) --no-progress
 	$(BPS) validate runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --measured runs/study$(SUFFIX)/baseline/truth/measured.csv --invalid runs/study$(SUFFIX)/baseline
 	@echo "refined inputs: runs/study$(SUFFIX)/refine/refine.json; table: runs/study$(SUFFIX)/refined/validation.csv; figures: runs/study$(SUFFIX)/refined/figures/"
+
+# Bayesian (Kennedy-O'Hagan) and deterministic calibration of the test cell to synthetic
+# measurements (seed §4.3): the daily example, then every data scenario (Table 4.1).
+calibrate-demo: $(STAMP)
+	$(BPS) synth configs/calibration.yaml --truth configs/calibration_truth.yaml
+	$(BPS) calibrate configs/calibration.yaml --measured runs/calibration/truth/measured.csv --truth runs/calibration/truth/truth.json --jobs $(JOBS) --no-progress
+	$(BPS) calibrate configs/calibration.yaml --measured runs/calibration/truth/measured.csv --truth runs/calibration/truth/truth.json --jobs $(JOBS) --no-progress --scenarios
+	@echo "results: runs/calibration/calibration/ (calibration.json, posterior.parquet, figures/); scenarios.csv"
 
 clean:
 	rm -rf runs bench/work .pytest_cache

@@ -74,9 +74,9 @@ class KohData:
 
     y: np.ndarray                  # (n,) standardised observations
     ux_obs: np.ndarray             # (n, B) rows of U_x at the observations
-    mean_weights: np.ndarray       # (R, B)
-    t_vectors: np.ndarray          # (R, R)
-    inverse_d: np.ndarray          # (R, B)
+    mean_weights: np.ndarray       # (A, B)
+    t_vectors: np.ndarray          # (R, A)
+    inverse_d: np.ndarray          # (A, B)
     x_values: np.ndarray           # (B,)
     signal_variance: float
     t_scaled: np.ndarray           # (R, k_active) runs' t / ℓ_t
@@ -87,6 +87,8 @@ class KohData:
     n_parameters: int
     ard: bool
     priors: dict[str, tuple[float, float]] = field(default_factory=dict)  # name -> (mean, sd) of log
+    lowrank: bool = False
+    x_inducing: np.ndarray | None = None   # (m, d_x) inducing inputs of δ (low-rank likelihood)
 
 
 def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
@@ -103,29 +105,46 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
                                         settings.discrepancy_lengthscale.log_sd),
         "log_noise_std": (np.log(settings.noise_std.median), settings.noise_std.log_sd),
     }
+    lowrank = settings.likelihood == "lowrank" or (
+        settings.likelihood == "auto" and len(obs_rows) > settings.exact_max_observations)
+    x_obs = grid.x[obs_rows]
+    inducing = inducing_inputs(x_obs, settings.inducing_points, settings.seed) if lowrank else None
     return KohData(y=np.asarray(y, float), ux_obs=grid.x_vectors[obs_rows],
                    mean_weights=grid.mean_weights, t_vectors=grid.t_vectors,
                    inverse_d=grid.inverse_d, x_values=grid.x_values,
                    signal_variance=grid.hyper.signal_variance,
                    t_scaled=grid.t[:, active] / lengthscales[active],
                    inverse_lengthscales=1.0 / lengthscales[active], log_base=log_base,
-                   x_obs=grid.x[obs_rows], active=active, n_parameters=grid.t.shape[1],
-                   ard=settings.ard, priors=priors)
+                   x_obs=x_obs, active=active, n_parameters=grid.t.shape[1],
+                   ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing)
 
 
-def _emulator_moments(z, d: dict):
-    """Emulator mean and covariance at the observations for non-centred θ ``z`` (JAX)."""
+def inducing_inputs(x: np.ndarray, count: int, random_state: int) -> np.ndarray:
+    """``count`` inducing inputs of δ: k-means centres of the observations' inputs."""
+    from sklearn.cluster import KMeans
+
+    if count >= len(x):
+        return np.array(x, dtype=float)
+    return KMeans(count, n_init=1, random_state=random_state).fit(x).cluster_centers_
+
+
+def _emulator_moments(z, d: dict, full: bool = True):
+    """Emulator mean and covariance (``full``) or variances at the observations (JAX).
+
+    ``z`` is the non-centred θ of the sampled parameters.
+    """
     import jax.numpy as jnp
     from jax.scipy.special import ndtr
 
     t = (ndtr(z) - 0.5) * SQRT12 * d["inverse_lengthscales"]
     log_w = d["log_base"] - 0.5 * jnp.sum((t[None, :] - d["t_scaled"]) ** 2, axis=1)
-    v = d["t_vectors"].T @ jnp.exp(log_w)
-    mean = d["ux_obs"] @ (d["mean_weights"].T @ v)
+    v = d["t_basis"] @ jnp.exp(log_w)
+    mean = d["ux_obs"] @ (d["mean_weights_t"] @ v)
     s2, mu = d["signal_variance"], d["x_values"]
-    c = jnp.clip(s2 * mu - s2 * s2 * mu * mu * (d["inverse_d"].T @ (v * v)), 0.0, None)
-    cov = (d["ux_obs"] * c) @ d["ux_obs"].T
-    return mean, cov
+    c = jnp.clip(s2 * mu - s2 * s2 * mu * mu * (d["inverse_d_t"] @ (v * v)), 0.0, None)
+    if full:
+        return mean, (d["ux_obs"] * c) @ d["ux_obs"].T
+    return mean, (d["ux_obs"] * d["ux_obs"]) @ c
 
 
 def _discrepancy_kernel(log_lengthscale, d: dict, ard: bool):
@@ -188,7 +207,46 @@ def _gaussian_log_density():
 _GAUSSIAN = None
 
 
-def make_model(ard: bool, priors: dict[str, tuple[float, float]]):
+def _cross_kernel(a, b, log_lengthscale, ard: bool):
+    """Unit-variance squared exponential between rows of ``a`` and ``b`` (JAX)."""
+    import jax.numpy as jnp
+
+    scale = jnp.exp(-log_lengthscale) if ard else jnp.exp(-log_lengthscale[0])
+    a, b = a * scale, b * scale
+    d2 = jnp.sum(a * a, 1)[:, None] + jnp.sum(b * b, 1)[None, :] - 2.0 * a @ b.T
+    return jnp.exp(-0.5 * jnp.maximum(d2, 0.0))
+
+
+def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, ard: bool):
+    """``log N(residual; 0, D + σ_δ² (Q + diag(1 - q)))`` with δ's FITC covariance (JAX).
+
+    δ's kernel is replaced by its Nyström approximation on ``m`` inducing
+    inputs ``Q = K_nm K_mm⁻¹ K_mn`` with the exact variances restored on the
+    diagonal (FITC, Snelson & Ghahramani 2006); ``diagonal`` carries the
+    emulator's variances and the noise. Woodbury's identity makes a step
+    ``O(n m²)`` instead of ``O(n³)``.
+    """
+    import jax.numpy as jnp
+    from jax.scipy.linalg import solve_triangular
+
+    k_mm = _cross_kernel(d["x_inducing"], d["x_inducing"], log_lengthscale, ard)
+    m = k_mm.shape[0]
+    chol_m = jnp.linalg.cholesky(k_mm + 1e-6 * jnp.eye(m))
+    v = solve_triangular(chol_m, _cross_kernel(d["x_inducing"], d["x_obs"], log_lengthscale, ard),
+                         lower=True)                                      # (m, n)
+    q = jnp.sum(v * v, axis=0)
+    diag = diagonal + sd_delta ** 2 * jnp.clip(1.0 - q, 0.0, None) + _JITTER
+    w = sd_delta * v / jnp.sqrt(diag)[None, :]                            # (m, n)
+    a = jnp.eye(m) + w @ w.T
+    chol_a = jnp.linalg.cholesky(a)
+    scaled = residual / jnp.sqrt(diag)
+    proj = solve_triangular(chol_a, w @ scaled, lower=True)
+    quad = scaled @ scaled - proj @ proj
+    logdet = jnp.sum(jnp.log(diag)) + 2.0 * jnp.sum(jnp.log(jnp.diag(chol_a)))
+    return -0.5 * (quad + logdet + residual.shape[0] * jnp.log(2 * jnp.pi))
+
+
+def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool = False):
     """The NumPyro model of seed eq. 19–22 (see the module docstring).
 
     ``ard`` and the priors are fixed in the closure; the arrays (the data and
@@ -210,6 +268,12 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]]):
                                 dist.Normal(m, s).expand([n_ls]).to_event(1))
         m, s = priors["log_noise_std"]
         log_sd_eps = numpyro.sample("log_noise_std", dist.Normal(m, s))
+        if lowrank:
+            mean, variance = _emulator_moments(z, d, full=False)
+            numpyro.factor("y", lowrank_log_density(
+                d["y"] - mean, variance + jnp.exp(2 * log_sd_eps), jnp.exp(log_sd_delta),
+                log_ls, d, ard))
+            return
         mean, cov = _emulator_moments(z, d)
         n = d["y"].shape[0]
         total = (cov + jnp.exp(2 * log_sd_delta) * _discrepancy_kernel(log_ls, d, ard)
@@ -224,11 +288,15 @@ def model_arrays(data: KohData) -> dict:
     x = data.x_obs
     sq = np.sum(x * x, axis=1)
     x_sqdist = np.maximum(sq[:, None] + sq[None, :] - 2.0 * x @ x.T, 0.0)
-    return {"y": data.y, "ux_obs": data.ux_obs, "mean_weights": data.mean_weights,
-            "t_vectors": data.t_vectors, "inverse_d": data.inverse_d,
+    # transposed copies, contiguous: XLA's CPU matrix-vector products are slow on strided views
+    return {"y": data.y, "ux_obs": data.ux_obs,
+            "mean_weights_t": np.ascontiguousarray(data.mean_weights.T),
+            "t_basis": np.ascontiguousarray(data.t_vectors.T),
+            "inverse_d_t": np.ascontiguousarray(data.inverse_d.T),
             "x_values": data.x_values, "signal_variance": np.float64(data.signal_variance),
             "t_scaled": data.t_scaled, "inverse_lengthscales": data.inverse_lengthscales,
-            "log_base": data.log_base, "x_obs": x, "x_sqdist": x_sqdist}
+            "log_base": data.log_base, "x_obs": x, "x_sqdist": x_sqdist,
+            "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1]))}
 
 
 # ---------------------------------------------------------------------------
@@ -276,24 +344,98 @@ def initial_values(data: KohData, z_start: np.ndarray | None, chains: int,
     return out
 
 
-def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None = None,
-                     progress: bool = False) -> Posterior:
-    """Run NUTS (NumPyro) with ``settings.chains`` chains; parallel when devices allow.
+@dataclass
+class Laplace:
+    """The posterior mode (MAP) on the sampler's scale and the inverse Hessian there.
 
-    Warm-up and sampling run (and are timed) separately; JIT compilation
-    counts in the warm-up time.
+    ``covariance`` is ordered like NumPyro's flattened sites (sorted names).
+    """
+
+    mode: dict[str, np.ndarray]
+    covariance: np.ndarray
+    log_density: float
+    seconds: float
+
+
+def laplace(data: KohData, start: dict[str, np.ndarray]) -> Laplace:
+    """Find the MAP from ``start`` (L-BFGS on JAX gradients) and the Laplace covariance.
+
+    Used to start NUTS near the mode with a mass matrix that already fits the
+    posterior's scales and correlations, which shortens warm-up.
     """
     import jax
-    from numpyro.infer import MCMC, NUTS
+    import jax.numpy as jnp
+    from jax.flatten_util import ravel_pytree
+    from numpyro.infer.util import potential_energy
+    from scipy.optimize import minimize
+
+    started = time.perf_counter()
+    arrays = model_arrays(data)
+    model = make_model(data.ard, data.priors, data.lowrank)
+    flat0, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
+
+    def energy(flat):
+        return potential_energy(model, (arrays,), {}, unravel(flat))
+
+    value_and_grad = jax.jit(jax.value_and_grad(energy))
+    hessian = jax.jit(jax.hessian(energy))
+
+    def fun(x):
+        value, grad = value_and_grad(jnp.asarray(x))
+        return float(value), np.asarray(grad, dtype=float)
+
+    result = minimize(fun, np.asarray(flat0, dtype=float), jac=True, method="L-BFGS-B",
+                      options={"maxiter": 500})
+    h = np.asarray(hessian(jnp.asarray(result.x)), dtype=float)
+    h = 0.5 * (h + h.T)
+    w, v = np.linalg.eigh(h)
+    # a flat or non-convex direction gets unit variance (the prior scale)
+    w = np.where(w > 1e-6, w, 1.0)
+    covariance = (v / w) @ v.T
+    mode = {k: np.asarray(val) for k, val in unravel(jnp.asarray(result.x)).items()}
+    return Laplace(mode=mode, covariance=covariance, log_density=-float(result.fun),
+                   seconds=time.perf_counter() - started)
+
+
+def laplace_starts(approx: Laplace, chains: int, random_state: int,
+                   spread: float = 1.5) -> dict[str, np.ndarray]:
+    """Chain starts drawn from the Laplace approximation widened ``spread`` times.
+
+    Over-dispersed starts let R-hat detect chains that have not mixed.
+    """
+    from jax.flatten_util import ravel_pytree
+
+    rng = np.random.default_rng(random_state)
+    flat, unravel = ravel_pytree(approx.mode)
+    chol = np.linalg.cholesky(approx.covariance + 1e-12 * np.eye(len(flat)))
+    starts = [unravel(np.asarray(flat) + spread * chol @ rng.standard_normal(len(flat)))
+              for _ in range(chains)]
+    return {k: np.stack([np.asarray(s[k]) for s in starts]) for k in approx.mode}
+
+
+def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None = None,
+                     progress: bool = False, inverse_mass_matrix: np.ndarray | None = None
+                     ) -> Posterior:
+    """Run NUTS (NumPyro) with ``settings.chains`` chains; parallel when devices allow.
+
+    ``init`` holds per-chain starts (arrays with a leading chain axis);
+    ``inverse_mass_matrix`` an initial dense mass matrix (e.g.
+    :attr:`Laplace.covariance`) that warm-up goes on adapting. Warm-up and
+    sampling run (and are timed) separately; JIT compilation counts in the
+    warm-up time.
+    """
+    import jax
 
     chains = settings.chains
     method = "parallel" if jax.local_device_count() >= chains and chains > 1 else "sequential"
-    kernel = NUTS(make_model(data.ard, data.priors), target_accept_prob=settings.target_accept,
-                  dense_mass=settings.dense_mass, max_tree_depth=settings.max_tree_depth)
-    mcmc = MCMC(kernel, num_warmup=max(settings.warmup, 1), num_samples=settings.samples,
-                num_chains=chains, chain_method=method, progress_bar=progress,
-                jit_model_args=True)
+    mass = None if inverse_mass_matrix is None or not settings.dense_mass \
+        else np.asarray(inverse_mass_matrix)
+    mcmc = _mcmc(data.ard, tuple(sorted((k, tuple(map(float, v)))
+                                        for k, v in data.priors.items())),
+                 data.lowrank, settings, method, progress, mass)
     arrays = model_arrays(data)
+    if init is not None and chains == 1:   # NumPyro takes one chain's start unbatched
+        init = {k: np.asarray(v)[0] for k, v in init.items()}
     key = jax.random.PRNGKey(settings.seed)
     started = time.perf_counter()
     mcmc.warmup(key, arrays, init_params=init, extra_fields=("num_steps",),
@@ -312,6 +454,35 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
                      step_size=np.asarray(extra["adapt_state.step_size"])[:, -1],
                      warmup_seconds=warmed - started, sampling_seconds=done - warmed,
                      chain_method=method)
+
+
+_MCMC_CACHE: dict = {}
+
+
+def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, method: str,
+          progress: bool, inverse_mass_matrix: np.ndarray | None):
+    """A NumPyro MCMC object; reused for the same model and settings without a mass matrix.
+
+    The model's arrays are arguments (``jit_model_args``), so a reused object
+    samples new data of the same shapes without compiling again (repeated
+    synthetic truths, tests).
+    """
+    from numpyro.infer import MCMC, NUTS
+
+    key = (ard, priors, lowrank, settings.chains, settings.warmup, settings.samples,
+           settings.target_accept, settings.dense_mass, settings.max_tree_depth, method, progress)
+    if inverse_mass_matrix is None and key in _MCMC_CACHE:
+        return _MCMC_CACHE[key]
+    kernel = NUTS(make_model(ard, dict(priors), lowrank), target_accept_prob=settings.target_accept,
+                  dense_mass=settings.dense_mass, max_tree_depth=settings.max_tree_depth,
+                  inverse_mass_matrix=inverse_mass_matrix)
+    mcmc = MCMC(kernel, num_warmup=max(settings.warmup, 1), num_samples=settings.samples,
+                num_chains=settings.chains, chain_method=method, progress_bar=progress,
+                jit_model_args=True)
+    if inverse_mass_matrix is None:
+        _MCMC_CACHE.clear()
+        _MCMC_CACHE[key] = mcmc
+    return mcmc
 
 
 # ---------------------------------------------------------------------------
@@ -445,45 +616,69 @@ def unit_draws(data: KohData, posterior: Posterior, random_state: int = 0) -> np
     return unit
 
 
+@dataclass
+class Predictive:
+    """KOH posterior predictive at target rows, per draw (standardised units).
+
+    ``mean``: E[y | data, θ, φ]; ``sample``: one draw of a new observation;
+    ``discrepancy``: E[δ | data, θ, φ] (the model bias the data imply).
+    """
+
+    mean: np.ndarray           # (draws, n_target)
+    sample: np.ndarray         # (draws, n_target)
+    discrepancy: np.ndarray    # (draws, n_target)
+
+
 def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray,
                y_obs: np.ndarray, unit: np.ndarray, log_sd_delta: np.ndarray,
                log_lengthscale: np.ndarray, log_sd_eps: np.ndarray, ard: bool,
-               random_state: int = 0) -> tuple[np.ndarray, np.ndarray]:
+               x_inducing: np.ndarray | None = None, random_state: int = 0) -> Predictive:
     """KOH posterior predictive of new observations at ``target_rows`` (standardised).
 
-    For each draw: the Gaussian conditional of ``y(target)`` given the
-    observations, the simulations, θ and φ_δ (emulator + discrepancy + noise),
-    its mean and one draw from it.
-
-    Returns
-    -------
-    means, samples : ndarray, shape (draws, n_target)
+    For each draw: the Gaussian conditional of ``y(target)`` (emulator +
+    discrepancy + noise) given the observations, the simulations, θ and φ_δ —
+    its mean, one draw from it, and the conditional mean of δ alone.
+    ``target_rows`` may repeat ``obs_rows`` (δ at the calibration rows).
+    With ``x_inducing`` (the low-rank likelihood) δ's covariance is the same
+    FITC approximation and the emulator keeps only its variances.
     """
     rng = np.random.default_rng(random_state)
     rows = np.concatenate([obs_rows, target_rows])
-    n_obs = len(obs_rows)
+    n_obs, n_target = len(obs_rows), len(target_rows)
     x = grid.x[rows]
-    means, samples = [], []
+    means, samples, deltas = [], [], []
     t_all = (unit - 0.5) * SQRT12
     mean_all = grid.predict_mean(t_all)[:, rows]
     for i in range(len(unit)):
         cov_eta = grid.predict_cov(t_all[i])[np.ix_(rows, rows)]
         ls = np.exp(np.atleast_1d(log_lengthscale[i]))
-        scaled = x / (ls if ard else ls[0])
-        sq = np.sum(scaled * scaled, axis=1)
-        k_delta = np.exp(-0.5 * np.maximum(sq[:, None] + sq[None, :] - 2 * scaled @ scaled.T, 0))
-        total = cov_eta + np.exp(2 * log_sd_delta[i]) * k_delta \
-            + (np.exp(2 * log_sd_eps[i]) + _JITTER) * np.eye(len(rows))
-        s_oo = total[:n_obs, :n_obs]
-        s_to = total[n_obs:, :n_obs]
-        chol = np.linalg.cholesky(s_oo)
-        solve = np.linalg.solve(chol, s_to.T)
-        resid = np.linalg.solve(chol, y_obs - mean_all[i, :n_obs])
-        mean = mean_all[i, n_obs:] + solve.T @ resid
+        ls = ls if ard else ls[0]
+        k_delta = np.exp(2 * log_sd_delta[i]) * _se(x, x, ls)
+        if x_inducing is not None:
+            cov_eta = np.diag(np.diag(cov_eta))
+            k_mm = _se(x_inducing, x_inducing, ls) + 1e-6 * np.eye(len(x_inducing))
+            k_nm = _se(x, x_inducing, ls)
+            nystrom = k_nm @ np.linalg.solve(k_mm, k_nm.T)
+            k_delta = np.exp(2 * log_sd_delta[i]) * (
+                nystrom + np.diag(np.clip(1.0 - np.diag(nystrom), 0.0, None)))
+        noise = (np.exp(2 * log_sd_eps[i]) + _JITTER) * np.eye(len(rows))
+        total = cov_eta + k_delta + noise
+        chol = np.linalg.cholesky(total[:n_obs, :n_obs])
+        resid = np.linalg.solve(chol.T, np.linalg.solve(chol, y_obs - mean_all[i, :n_obs]))
+        cross = total[n_obs:, :n_obs] - (noise[n_obs:, :n_obs])
+        mean = mean_all[i, n_obs:] + cross @ resid
+        solve = np.linalg.solve(chol, cross.T)
         cov = total[n_obs:, n_obs:] - solve.T @ solve
-        jitter = 1e-10 * np.eye(len(target_rows))
-        w, vecs = np.linalg.eigh(cov + jitter)
-        draw = mean + vecs @ (np.sqrt(np.clip(w, 0, None)) * rng.standard_normal(len(w)))
+        w, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+        draw = mean + vecs @ (np.sqrt(np.clip(w, 0, None)) * rng.standard_normal(n_target))
         means.append(mean)
         samples.append(draw)
-    return np.array(means), np.array(samples)
+        deltas.append(k_delta[n_obs:, :n_obs] @ resid)
+    return Predictive(mean=np.array(means), sample=np.array(samples),
+                      discrepancy=np.array(deltas))
+
+
+def _se(a: np.ndarray, b: np.ndarray, lengthscale) -> np.ndarray:
+    a, b = a / lengthscale, b / lengthscale
+    d2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2.0 * a @ b.T
+    return np.exp(-0.5 * np.maximum(d2, 0.0))

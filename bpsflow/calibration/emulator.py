@@ -39,6 +39,7 @@ it).
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -113,6 +114,7 @@ class Hyperparameters:
     nugget: float
     log_marginal_likelihood: float = float("nan")
     fit_seconds: float = 0.0
+    notes: tuple[str, ...] = ()
 
 
 def fit_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray, restarts: int = 1,
@@ -128,17 +130,26 @@ def fit_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray, restarts: i
     y : ndarray, shape (n,)
         Standardised outputs.
     """
+    from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
     started = time.perf_counter()
     inputs = np.hstack([x, t])
+    # Calibration parameters move the outputs far less than the weather does: starting
+    # their length-scales long saves optimiser iterations.
+    start = np.concatenate([np.full(x.shape[1], 1.5), np.full(t.shape[1], 10.0)])
     kernel = (ConstantKernel(1.0, (1e-3, 1e3))
-              * RBF(length_scale=np.full(inputs.shape[1], 2.0), length_scale_bounds=(5e-2, 1e3))
-              + WhiteKernel(1e-3, (1e-9, 1.0)))
+              * RBF(length_scale=start, length_scale_bounds=(5e-2, 1e3))
+              + WhiteKernel(1e-3, (1e-6, 1.0)))
     gp = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=restarts,
                                   random_state=random_state, copy_X_train=False)
-    gp.fit(inputs, y)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        gp.fit(inputs, y)
+    # a length-scale at its upper bound means "no effect": expected, and reported
+    notes = sorted({str(w.message).split(".")[0] for w in caught
+                    if issubclass(w.category, ConvergenceWarning)})
     learned = gp.kernel_
     lengthscales = np.atleast_1d(learned.k1.k2.length_scale).astype(float)
     d_x = x.shape[1]
@@ -146,7 +157,7 @@ def fit_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray, restarts: i
                            x_lengthscales=lengthscales[:d_x], t_lengthscales=lengthscales[d_x:],
                            nugget=float(learned.k2.noise_level),
                            log_marginal_likelihood=float(gp.log_marginal_likelihood_value_),
-                           fit_seconds=time.perf_counter() - started)
+                           fit_seconds=time.perf_counter() - started, notes=tuple(notes))
 
 
 def squared_exponential(a: np.ndarray, b: np.ndarray, lengthscales: np.ndarray) -> np.ndarray:
@@ -174,12 +185,12 @@ class GridEmulator:
     t: np.ndarray
     y: np.ndarray
     hyper: Hyperparameters
-    t_vectors: np.ndarray = field(init=False, repr=False)     # U_t (R, R)
-    t_values: np.ndarray = field(init=False, repr=False)      # λ (R,)
+    t_vectors: np.ndarray = field(init=False, repr=False)     # U_t (R, A)
+    t_values: np.ndarray = field(init=False, repr=False)      # λ (A,)
     x_vectors: np.ndarray = field(init=False, repr=False)     # U_x (M, B)
     x_values: np.ndarray = field(init=False, repr=False)      # μ (B,)
-    inverse_d: np.ndarray = field(init=False, repr=False)     # 1 / D (R, B)
-    z: np.ndarray = field(init=False, repr=False)             # Z (R, B)
+    inverse_d: np.ndarray = field(init=False, repr=False)     # 1 / D (A, B)
+    z: np.ndarray = field(init=False, repr=False)             # Z (A, B)
 
     def __post_init__(self) -> None:
         h = self.hyper
@@ -187,9 +198,12 @@ class GridEmulator:
         kx = squared_exponential(self.x, self.x, h.x_lengthscales)
         lam, ut = np.linalg.eigh(kt)
         mu, ux = np.linalg.eigh(kx)
+        # Directions with eigenvalues at rounding level carry only the nugget: the
+        # mean and covariance they add are ~1e-7 and ~1e-10 of the kept ones.
         keep = mu > _EIG_RTOL * mu.max()
         mu, ux = mu[keep], ux[:, keep]
-        lam = np.clip(lam, 0.0, None)
+        keep = lam > _EIG_RTOL * lam.max()
+        lam, ut = lam[keep], ut[:, keep]
         d = h.signal_variance * lam[:, None] * mu[None, :] + h.nugget
         self.t_vectors, self.t_values = ut, lam
         self.x_vectors, self.x_values = ux, mu
@@ -198,7 +212,7 @@ class GridEmulator:
 
     @property
     def mean_weights(self) -> np.ndarray:
-        """``s² Z ⊙ μ`` (R, B): the posterior mean is ``U_x (weightsᵀ v)``."""
+        """``s² Z ⊙ μ`` (A, B): the posterior mean is ``U_x (weightsᵀ v)``."""
         return self.hyper.signal_variance * self.z * self.x_values[None, :]
 
     def t_kernel(self, t_new: np.ndarray) -> np.ndarray:

@@ -79,7 +79,7 @@ class EmulatorSettings(_Strict):
 
     points: int = Field(default=840, ge=20)
     test_fraction: float = Field(default=0.1, ge=0.0, lt=0.5)
-    restarts: int = Field(default=1, ge=0)
+    restarts: int = Field(default=0, ge=0)
     seed: int = 0
 
 
@@ -104,6 +104,20 @@ class BayesSettings(_Strict):
     normalised) at most ``rhat_max``, bulk and tail ESS at least ``ess_min``
     and the share of divergent transitions is at most ``divergence_max``.
 
+    Chains start around the posterior mode, found from the deterministic
+    optimum (``init: deterministic``) or the prior medians (``prior``); with
+    ``laplace: true`` the starts are drawn from the Laplace approximation
+    (widened 1.5 times, so R-hat compares dispersed chains) and its covariance
+    is the initial dense mass matrix.
+
+    ``likelihood``: ``exact`` is the Gaussian likelihood of the observations
+    given the simulations with full covariances (one ``n × n`` Cholesky per
+    step); ``lowrank`` replaces δ's covariance by its FITC approximation on
+    ``inducing_points`` k-means inputs and keeps only the emulator's variances
+    (its covariances between observations are orders of magnitude under the
+    noise), ``O(n m²)`` per step; ``auto`` is exact up to
+    ``exact_max_observations`` observations.
+
     ``screen_effect`` drops from the sampler the calibration parameters whose
     largest effect on the emulator over their range is under this many
     standardised output units: the data cannot inform them, so their
@@ -118,11 +132,15 @@ class BayesSettings(_Strict):
     dense_mass: bool = True
     seed: int = 0
     init: Literal["deterministic", "prior"] = "deterministic"
+    laplace: bool = True
     discrepancy_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.2))
     discrepancy_lengthscale: LogNormalPrior = Field(
         default_factory=lambda: LogNormalPrior(median=1.0, log_sd=0.75))
     noise_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.05))
     ard: bool = False
+    likelihood: Literal["auto", "exact", "lowrank"] = "auto"
+    exact_max_observations: int = Field(default=150, ge=1)
+    inducing_points: int = Field(default=64, ge=4)
     screen_effect: float = Field(default=0.01, ge=0)
     rhat_max: float = Field(default=1.01, gt=1)
     ess_min: float = Field(default=400, ge=0)

@@ -77,6 +77,7 @@ class CalibrationRun:
     heldout: pd.DataFrame | None = None
     truth: dict[str, float] | None = None
     units: dict[str, str] = field(default_factory=dict)
+    labels: dict[str, list[str]] = field(default_factory=dict)   # names of vector sites
     timings: dict[str, float] = field(default_factory=dict)
 
 
@@ -205,29 +206,51 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
     data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs)
     z_start = special.ndtri(np.clip(run.deterministic.unit, 1e-6, 1 - 1e-6)) \
         if bs.init == "deterministic" else None
-    init = bayes.initial_values(data, z_start, bs.chains, bs.seed)
+    inverse_mass = None
+    if bs.laplace:
+        start = {k: v[0] for k, v in bayes.initial_values(data, z_start, 1, bs.seed,
+                                                          spread=0.0).items()}
+        approx = bayes.laplace(data, start)
+        init = bayes.laplace_starts(approx, bs.chains, bs.seed)
+        inverse_mass = approx.covariance
+        run.timings["laplace_seconds"] = approx.seconds
+    else:
+        init = bayes.initial_values(data, z_start, bs.chains, bs.seed)
     console.print(f"[{run.scenario.name}] NUTS: {bs.chains} chains x ({bs.warmup} warm-up + "
                   f"{bs.samples}) draws, {len(run.active)} calibration parameters, "
                   f"{len(y)} observations")
-    posterior = bayes.sample_posterior(data, bs, init, progress=show_progress)
+    posterior = bayes.sample_posterior(data, bs, init, progress=show_progress,
+                                       inverse_mass_matrix=inverse_mass)
     labels = {"z": [run.parameters[i].name for i in run.active],
               "log_discrepancy_lengthscale": (list(emulator.scaling.x_columns) if bs.ard
                                               else ["log_discrepancy_lengthscale"])}
     convergence = bayes.assess(posterior, labels, bs)
-    run.posterior, run.convergence, run.koh = posterior, convergence, data
+    run.posterior, run.convergence, run.koh, run.labels = posterior, convergence, data, labels
     run.timings["mcmc_seconds"] = posterior.seconds
     run.unit_draws = bayes.unit_draws(data, posterior, random_state=bs.seed)
     flat = bayes.flat_draws(posterior)
     pick = np.linspace(0, len(run.unit_draws) - 1,
                        min(PREDICTIVE_DRAWS, len(run.unit_draws))).astype(int)
     started = time.perf_counter()
-    means, samples = bayes.predictive(
+    heldout = bayes.predictive(
         emulator.grid, run.obs_rows, run.heldout_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
-        flat["log_noise_std"][pick], bs.ard, random_state=bs.seed)
+        flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
+        random_state=bs.seed)
+    at_obs = bayes.predictive(
+        emulator.grid, run.obs_rows, run.obs_rows, y, run.unit_draws[pick],
+        flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
+        flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
+        random_state=bs.seed)
     outputs_h = run.paired.rows["output"].to_numpy()[run.heldout_rows]
-    run.predictive = {"mean": emulator.scaling.y_back(means, outputs_h),
-                      "samples": emulator.scaling.y_back(samples, outputs_h)}
+    scaling = emulator.scaling
+    run.predictive = {
+        "mean": scaling.y_back(heldout.mean, outputs_h),
+        "samples": scaling.y_back(heldout.sample, outputs_h),
+        # δ in output units: standardised δ times the output's scale
+        "discrepancy_heldout": heldout.discrepancy * scaling.y_std[scaling.output_index(outputs_h)],
+        "discrepancy_calibration": at_obs.discrepancy
+        * scaling.y_std[scaling.output_index(outputs_obs)]}
     run.timings["predictive_seconds"] = time.perf_counter() - started
     verdict = "converged" if convergence.converged else \
         "NOT converged: " + "; ".join(convergence.reasons)

@@ -1,0 +1,198 @@
+"""The body of ``bpsflow calibrate``: options -> workflow -> files -> console tables.
+
+Kept out of :mod:`bpsflow.cli` so the command line stays a thin layer; the
+returned :class:`Outcome` tells the CLI whether every run converged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from bpsflow.calibration.settings import CalibrationSettings, Scenario
+from bpsflow.config import Config
+from bpsflow.errors import BpsflowError
+
+DEFAULT_OUT = "calibration"
+SCENARIOS_DIR = "scenarios"
+
+
+@dataclass
+class Outcome:
+    """What ran and whether the Bayesian runs converged."""
+
+    runs: list = field(default_factory=list)
+    paths: dict = field(default_factory=dict)
+    unconverged: list[str] = field(default_factory=list)
+
+
+def apply_overrides(settings: CalibrationSettings, *, outputs: list[str] | None = None,
+                    resolution: str | None = None, chains: int | None = None,
+                    warmup: int | None = None, samples: int | None = None,
+                    runs: int | None = None) -> CalibrationSettings:
+    """A copy of ``settings`` with command-line overrides applied (validated)."""
+    data = settings.model_dump()
+    if outputs:
+        data["outputs"] = outputs
+    if resolution:
+        data["resolution"] = resolution
+    for key, value in (("chains", chains), ("warmup", warmup), ("samples", samples)):
+        if value is not None:
+            data["bayes"][key] = value
+    if runs is not None:
+        data["design"]["runs"] = runs
+    try:
+        return CalibrationSettings.model_validate(data)
+    except Exception as exc:  # pydantic's message names the option's key
+        raise BpsflowError(f"calibration option: {exc}") from None
+
+
+def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
+              all_scenarios: bool = False, out: Path | None = None, backend: str | None = None,
+              jobs: int | None = None, truth_path: Path | None = None,
+              settings: CalibrationSettings | None = None, show_progress: bool = True,
+              console: Console | None = None) -> Outcome:
+    """Run ``bpsflow calibrate``: one scenario (the section's top level) or all of them.
+
+    Raises
+    ------
+    BpsflowError
+        Bad options, config keys, measured data or failed simulations.
+    """
+    from bpsflow.calibration import workflow
+    from bpsflow.calibration.report import write
+    from bpsflow.calibration.scenarios import write_comparison
+    from bpsflow.runner import choose_backend
+    from bpsflow.synth import read_measured
+
+    console = console or Console()
+    if method not in ("bayes", "deterministic"):
+        raise BpsflowError(f"--method: expected bayes or deterministic, got '{method}'")
+    settings = settings or workflow.settings_of(config)
+    if backend is not None:
+        if backend not in ("energyplus", "surrogate", "auto"):
+            raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got "
+                               f"'{backend}'")
+        config.model.backend = backend
+    measured = read_measured(measured_path)
+    if all_scenarios:
+        if not settings.scenarios:
+            raise BpsflowError("calibration.scenarios: --scenarios needs at least one scenario "
+                               "in the config's calibration section", source=config.source)
+        scenarios = [(s, f"calibration.scenarios ({s.name})") for s in settings.scenarios]
+    else:
+        scenarios = [(settings.scenario(workflow.measured_outputs(config, measured)),
+                      "calibration")]
+    for scenario, where in scenarios:
+        workflow.check_scenario(config, scenario, where)
+    if method == "bayes":
+        from bpsflow.calibration.bayes import configure_jax
+
+        configure_jax(settings.bayes.chains)
+    out = Path(out) if out else config.run_dir.resolve() / DEFAULT_OUT
+    chosen_backend = choose_backend(config)
+    design = workflow.prepare_design(config, settings, out / "design", chosen_backend, jobs,
+                                     show_progress)
+    truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None
+    outcome = Outcome()
+    for scenario, _ in scenarios:
+        folder = out / SCENARIOS_DIR / scenario.name if all_scenarios else out
+        run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
+                                          measured_path, method, folder, jobs, truth,
+                                          show_progress)
+        paths = write(run, folder)
+        outcome.runs.append(run)
+        outcome.paths[scenario.name] = paths
+        print_run(run, console)
+        console.print(f"wrote {paths['json']}" + (f", {paths['posterior']}"
+                                                  if "posterior" in paths else "")
+                      + f", {paths['heldout']} and figures in {paths['figures']}")
+        if run.convergence is not None and not run.convergence.converged:
+            outcome.unconverged.append(f"{scenario.name}: {'; '.join(run.convergence.reasons)}")
+    if all_scenarios:
+        paths = write_comparison(outcome.runs, out)
+        outcome.paths["comparison"] = paths
+        print_comparison(outcome.runs, console)
+        console.print(f"wrote {paths['csv']}, {paths['json']}, {paths['figure']}")
+    return outcome
+
+
+def print_run(run, console: Console) -> None:
+    """Parameters (prior vs posterior) and held-out accuracy of one calibration."""
+    from bpsflow.calibration.report import parameter_table
+
+    title = f"{run.scenario.name}: {run.method} calibration to {'+'.join(run.scenario.outputs)} " \
+            f"({run.scenario.resolution}, {len(run.obs_rows)} observations)"
+    table = Table(title=title)
+    for column in ("parameter", "prior 90 %", "posterior 90 %", "contraction", "deterministic",
+                   "truth"):
+        table.add_column(column, justify="left" if column == "parameter" else "right")
+    for entry in parameter_table(run):
+        prior = entry["prior"]
+        post = entry.get("posterior")
+        truth = entry.get("truth")
+        mark = "" if "truth_in_90" not in entry else (" ✓" if entry["truth_in_90"] else " ✗")
+        table.add_row(entry["name"] + ("" if entry["sampled"] else " (not sampled)"),
+                      f"{prior['q05']:.3g} .. {prior['q95']:.3g}",
+                      "-" if post is None else f"{post['q05']:.3g} .. {post['q95']:.3g}",
+                      "-" if post is None else f"{entry['contraction']:.0%}",
+                      f"{entry['deterministic']:.3g}",
+                      "-" if truth is None else f"{truth:.3g}{mark}")
+    console.print(table)
+    held = Table(title=f"{run.scenario.name}: held-out accuracy (last days, never calibrated on)")
+    for column in ("model", "output", "resolution", "CV(RMSE) / RMSE", "NMBE / MBE",
+                   "nMCRPS / MCRPS", "G14"):
+        held.add_column(column, justify="left" if column in ("model", "output", "resolution")
+                        else "right")
+    for r in run.heldout.to_dict("records"):
+        temperature = r["cv_rmse"] is None
+        held.add_row(r["model"], r["output"], r["resolution"],
+                     f"{r['rmse']:.3g} {r['unit']}" if temperature else f"{r['cv_rmse']:.1%}",
+                     f"{r['mbe']:.3g} {r['unit']}" if temperature else f"{r['nmbe']:+.1%}",
+                     f"{r['mcrps']:.3g} {r['unit']}" if temperature or r["nmcrps"] is None
+                     else f"{r['nmcrps']:.1%}",
+                     r["guideline14"] or "-")
+    console.print(held)
+    if run.posterior is not None:
+        conv, post = run.convergence, run.posterior
+        ess = min(conv.ess_bulk_min, conv.ess_tail_min)
+        console.print(
+            f"NUTS: {post.num_steps.shape[0]} chains ({post.chain_method}), {post.seconds:.1f} s "
+            f"(warm-up {post.warmup_seconds:.1f} s), R-hat max {conv.rhat_max:.4f}, ESS bulk "
+            f"{conv.ess_bulk_min:.0f} / tail {conv.ess_tail_min:.0f} "
+            f"({ess / post.seconds:.2f} ESS/s), {post.num_steps.mean():.1f} steps per iteration, "
+            f"{conv.divergences} divergences: "
+            + ("[green]converged[/green]" if conv.converged else
+               "[bold red]NOT converged[/bold red]: " + "; ".join(conv.reasons)))
+    test = run.emulator.test
+    if test is not None:
+        console.print(f"emulator hold-out ({len(test.test_runs)} runs): R² {test.r2:.4f}; "
+                      + ", ".join(f"{o} R² {v['r2']:.4f} RMSE {v['rmse']:.3g}"
+                                  for o, v in test.per_output.items()))
+
+
+def print_comparison(runs: list, console: Console) -> None:
+    """The scenario comparison: contraction per parameter and held-out accuracy."""
+    from bpsflow.calibration.scenarios import comparison_table
+
+    frame = comparison_table(runs)
+    table = Table(title="data scenarios: posterior contraction and held-out accuracy "
+                        "(seed Table 4.1, Figures 4.8-4.9)")
+    table.add_column("column")
+    for run in runs:
+        table.add_column(run.scenario.name, justify="right")
+    for column in frame.columns:
+        if column == "scenario":
+            continue
+        cells = []
+        for value in frame[column]:
+            if isinstance(value, (float, np.floating)):
+                cells.append("-" if not np.isfinite(value) else f"{value:.3g}")
+            else:
+                cells.append(str(value))
+        table.add_row(column.replace("contraction:", "contraction ").replace(":", " "), *cells)
+    console.print(table)

@@ -1,0 +1,393 @@
+"""What a calibration writes: calibration.json, posterior.parquet, tables and figures.
+
+Files in the output folder (``RUN_DIR/calibration`` by default)::
+
+    calibration.json        scenario, parameters (prior vs posterior, contraction,
+                            deterministic optimum, truth if given), discrepancy and
+                            noise, emulator (hyperparameters, hold-out R²/RMSE),
+                            diagnostics (R-hat, bulk/tail ESS, steps per iteration,
+                            divergences, seconds, ESS/s, verdict), held-out metrics
+    posterior.parquet       one row per draw: chain, draw, θ (parameter units),
+                            δ and ε standard deviations (standardised and per output)
+    heldout.csv             the held-out table (model × output × resolution)
+    observations.parquet    the rows used: time, output, split, measured, x
+    emulator_points.parquet the (run, row) pairs of the hyperparameter fit
+    figures/prior_posterior.png, figures/heldout_<output>_<resolution>.png,
+    figures/emulator_test.png, figures/trace.png
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from bpsflow.calibration.design import unit_to_values  # noqa: E402
+from bpsflow.calibration.workflow import CalibrationRun  # noqa: E402
+
+CALIBRATION_FILE = "calibration.json"
+POSTERIOR_FILE = "posterior.parquet"
+HELDOUT_FILE = "heldout.csv"
+OBSERVATIONS_FILE = "observations.parquet"
+EMULATOR_POINTS_FILE = "emulator_points.parquet"
+
+_PROBABILITIES = (0.05, 0.5, 0.95)
+
+
+def _summary(values: np.ndarray) -> dict[str, float]:
+    q05, q50, q95 = np.quantile(values, _PROBABILITIES)
+    return {"mean": float(np.mean(values)), "sd": float(np.std(values)), "q05": float(q05),
+            "median": float(q50), "q95": float(q95), "width90": float(q95 - q05)}
+
+
+def parameter_table(run: CalibrationRun) -> list[dict]:
+    """Per calibration parameter: prior and posterior summaries, contraction, optimum, truth.
+
+    Contraction is ``1 - posterior 90 % width / prior 90 % width`` (0: the data
+    taught nothing; 1: pinned down).
+    """
+    optimum = unit_to_values(run.deterministic.unit[None, :], run.parameters)[0]
+    draws = None if run.unit_draws is None else unit_to_values(run.unit_draws, run.parameters)
+    rows = []
+    for j, p in enumerate(run.parameters):
+        prior = p.distribution.scipy()
+        q05, q50, q95 = prior.ppf(_PROBABILITIES)
+        entry = {"name": p.name, "group": p.group, "distribution": p.distribution.type,
+                 "prior": {"mean": float(prior.mean()), "sd": float(prior.std()),
+                           "q05": float(q05), "median": float(q50), "q95": float(q95),
+                           "width90": float(q95 - q05)},
+                 "sampled": bool(j in set(run.active.tolist())),
+                 "emulator_effect": float(run.effects[j]),
+                 "emulator_lengthscale": float(run.emulator.hyper.t_lengthscales[j]),
+                 "deterministic": float(optimum[j])}
+        if draws is not None:
+            post = _summary(draws[:, j])
+            entry["posterior"] = post
+            entry["contraction"] = float(1 - post["width90"] / entry["prior"]["width90"])
+        if run.truth and p.name in run.truth:
+            value = run.truth[p.name]
+            entry["truth"] = value
+            if draws is not None:
+                entry["truth_in_90"] = bool(entry["posterior"]["q05"] <= value
+                                            <= entry["posterior"]["q95"])
+        rows.append(entry)
+    return rows
+
+
+def _per_output_scale(run: CalibrationRun, values: np.ndarray) -> dict[str, dict]:
+    scaling = run.emulator.scaling
+    return {o: {**_summary(values * scaling.y_std[i]), "unit": ""}
+            for i, o in enumerate(scaling.outputs)}
+
+
+def diagnostics(run: CalibrationRun) -> dict | None:
+    if run.posterior is None:
+        return None
+    post, conv = run.posterior, run.convergence
+    ess = min(conv.ess_bulk_min, conv.ess_tail_min)
+    return {
+        "converged": conv.converged, "reasons": conv.reasons,
+        "chains": int(post.num_steps.shape[0]), "samples_per_chain": int(post.num_steps.shape[1]),
+        "warmup_per_chain": int(post.warmup_num_steps.shape[1]),
+        "chain_method": post.chain_method,
+        "rhat_max": conv.rhat_max, "ess_bulk_min": conv.ess_bulk_min,
+        "ess_tail_min": conv.ess_tail_min,
+        "seconds": post.seconds, "warmup_seconds": post.warmup_seconds,
+        "sampling_seconds": post.sampling_seconds,
+        "min_ess_per_second": ess / post.seconds if post.seconds > 0 else None,
+        "steps_per_iteration": float(post.num_steps.mean()),
+        "warmup_steps_per_iteration": float(post.warmup_num_steps.mean()),
+        "step_size": [float(s) for s in post.step_size],
+        "divergences": conv.divergences, "divergence_share": conv.divergence_share,
+        "per_quantity": conv.per_quantity,
+    }
+
+
+def calibration_record(run: CalibrationRun) -> dict:
+    """The content of ``calibration.json``."""
+    em = run.emulator
+    scaling = em.scaling
+    rows = run.paired.rows
+    record = {
+        "scenario": {"name": run.scenario.name, "outputs": run.scenario.outputs,
+                     "resolution": run.scenario.resolution},
+        "method": run.method, "backend": run.backend,
+        "observations": {
+            "calibration": int(len(run.obs_rows)), "heldout": int(len(run.heldout_rows)),
+            "calibration_period": _period(rows.iloc[run.obs_rows]["time"]),
+            "heldout_period": _period(rows.iloc[run.heldout_rows]["time"]),
+            "notes": run.paired.notes,
+            "variable_inputs": list(scaling.x_columns),
+            "variable_inputs_dropped": list(scaling.dropped)},
+        "parameters": parameter_table(run),
+        "emulator": {
+            "kernel": "ARD squared exponential + nugget (seed eq. 20), MLE (scikit-learn)",
+            "signal_variance": em.hyper.signal_variance, "nugget": em.hyper.nugget,
+            "lengthscales": {**dict(zip(scaling.x_columns, map(float, em.hyper.x_lengthscales))),
+                             **dict(zip([p.name for p in run.parameters],
+                                        map(float, em.hyper.t_lengthscales)))},
+            "fit_points": int(len(em.fit_points)), "fit_seconds": em.hyper.fit_seconds,
+            "fit_notes": list(em.hyper.notes),
+            "runs": int(em.grid.t.shape[0]), "rows": int(em.grid.x.shape[0]),
+            "output_scaling": {o: {"mean": float(scaling.y_mean[i]),
+                                   "std": float(scaling.y_std[i])}
+                               for i, o in enumerate(scaling.outputs)},
+            "holdout": None if em.test is None else {
+                "runs": int(len(em.test.test_runs)), "r2": em.test.r2,
+                "rmse_standardised": em.test.rmse_standardised, "per_output": em.test.per_output},
+        },
+        "deterministic": {
+            "objective": run.deterministic.objective, "evaluations": run.deterministic.evaluations,
+            "seconds": run.deterministic.seconds, "starts": run.deterministic.starts},
+        "diagnostics": diagnostics(run),
+        "heldout": json.loads(run.heldout.to_json(orient="records")) if run.heldout is not None
+        else [],
+        "timings": run.timings,
+    }
+    if run.posterior is not None:
+        from bpsflow.calibration.bayes import flat_draws
+
+        flat = flat_draws(run.posterior)
+        record["likelihood"] = {
+            "kind": "lowrank" if run.koh.lowrank else "exact",
+            "description": ("observations given the simulations; delta FITC on "
+                            f"{len(run.koh.x_inducing)} inducing inputs, emulator variances"
+                            if run.koh.lowrank else
+                            "observations given the simulations, full covariances"),
+            "sampled_parameters": [run.parameters[i].name for i in run.active],
+            "laplace_seconds": run.timings.get("laplace_seconds")}
+        record["discrepancy"] = {
+            "std_standardised": _summary(np.exp(flat["log_discrepancy_std"])),
+            "std_per_output": _per_output_scale(run, np.exp(flat["log_discrepancy_std"])),
+            "lengthscale": {name: _summary(np.exp(flat["log_discrepancy_lengthscale"][:, i]))
+                            for i, name in enumerate(
+                                scaling.x_columns if run.koh.ard else ["shared"])},
+            "prior": {"std_median": float(np.exp(run.koh.priors["log_discrepancy_std"][0])),
+                      "std_log_sd": float(run.koh.priors["log_discrepancy_std"][1])}}
+        rows = run.paired.rows
+        bias = {}
+        for output in scaling.outputs:
+            entry = {"unit": run.units.get(output, "")}
+            for split, key, indices in (("calibration", "discrepancy_calibration", run.obs_rows),
+                                        ("heldout", "discrepancy_heldout", run.heldout_rows)):
+                mine = (rows["output"].to_numpy()[indices] == output)
+                if mine.any():
+                    entry[split] = float(run.predictive[key][:, mine].mean())
+            bias[output] = entry
+        record["discrepancy"]["mean_per_output"] = bias
+        record["noise"] = {
+            "std_standardised": _summary(np.exp(flat["log_noise_std"])),
+            "std_per_output": _per_output_scale(run, np.exp(flat["log_noise_std"])),
+            "prior": {"std_median": float(np.exp(run.koh.priors["log_noise_std"][0])),
+                      "std_log_sd": float(run.koh.priors["log_noise_std"][1])}}
+        for section in (record["discrepancy"]["std_per_output"],
+                        record["noise"]["std_per_output"]):
+            for output, entry in section.items():
+                entry["unit"] = run.units.get(output, "")
+    truth = [p for p in record["parameters"] if "truth_in_90" in p]
+    if truth:
+        record["truth_coverage_90"] = {"covered": sum(p["truth_in_90"] for p in truth),
+                                       "parameters": len(truth)}
+    return record
+
+
+def _period(times: pd.Series) -> list[str] | None:
+    if times.empty:
+        return None
+    return [str(times.min()), str(times.max())]
+
+
+def posterior_frame(run: CalibrationRun) -> pd.DataFrame:
+    """One row per draw: chain, draw, θ in parameter units, δ and ε standard deviations."""
+    from bpsflow.calibration.bayes import flat_draws
+
+    post = run.posterior
+    chains, samples = post.num_steps.shape
+    values = unit_to_values(run.unit_draws, run.parameters)
+    frame = pd.DataFrame(values, columns=[p.name for p in run.parameters])
+    frame.insert(0, "draw", np.tile(np.arange(samples), chains))
+    frame.insert(0, "chain", np.repeat(np.arange(chains), samples))
+    flat = flat_draws(post)
+    frame["discrepancy_std"] = np.exp(flat["log_discrepancy_std"])
+    lengthscales = np.exp(flat["log_discrepancy_lengthscale"])
+    names = run.emulator.scaling.x_columns if run.koh.ard else ["shared"]
+    for i, name in enumerate(names):
+        frame[f"discrepancy_lengthscale_{name}"] = lengthscales[:, i]
+    frame["noise_std"] = np.exp(flat["log_noise_std"])
+    for i, output in enumerate(run.emulator.scaling.outputs):
+        scale = run.emulator.scaling.y_std[i]
+        frame[f"discrepancy_std_{output}"] = frame["discrepancy_std"] * scale
+        frame[f"noise_std_{output}"] = frame["noise_std"] * scale
+    frame["diverging"] = post.diverging.reshape(-1)
+    return frame
+
+
+def observations_frame(run: CalibrationRun) -> pd.DataFrame:
+    frame = run.paired.rows[["time", "output", "test", "split"]].copy()
+    frame["measured"] = run.paired.observed
+    return pd.concat([frame, run.x.add_prefix("x_")], axis=1)
+
+
+def write(run: CalibrationRun, out_dir: Path) -> dict[str, Path]:
+    """Write every file and figure of one calibration into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"json": out_dir / CALIBRATION_FILE, "heldout": out_dir / HELDOUT_FILE}
+    record = calibration_record(run)
+    paths["json"].write_text(json.dumps(record, indent=2, default=_json_default))
+    run.heldout.to_csv(paths["heldout"], index=False, float_format="%.6g")
+    observations_frame(run).to_parquet(out_dir / OBSERVATIONS_FILE, index=False)
+    run.emulator.fit_points.to_parquet(out_dir / EMULATOR_POINTS_FILE, index=False)
+    if run.posterior is not None:
+        paths["posterior"] = out_dir / POSTERIOR_FILE
+        posterior_frame(run).to_parquet(paths["posterior"], index=False)
+    figures = out_dir / "figures"
+    figures.mkdir(exist_ok=True)
+    paths["figures"] = figures
+    plot_prior_posterior(run, figures / "prior_posterior.png")
+    plot_emulator_test(run, figures / "emulator_test.png")
+    for path in plot_heldout(run, figures):
+        paths[path.stem] = path
+    if run.posterior is not None:
+        plot_trace(run, figures / "trace.png")
+    return paths
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (pd.Timestamp, Path)):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+# ---------------------------------------------------------------------------
+# Figures
+
+
+def _grid(n: int, width: float = 3.0, height: float = 2.3):
+    cols = min(n, 3)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows),
+                             constrained_layout=True, squeeze=False)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    return fig, axes.ravel()
+
+
+def plot_prior_posterior(run: CalibrationRun, path: Path) -> Path:
+    """Prior density vs posterior histogram per parameter (seed Figure 4.8)."""
+    fig, axes = _grid(len(run.parameters))
+    draws = None if run.unit_draws is None else unit_to_values(run.unit_draws, run.parameters)
+    optimum = unit_to_values(run.deterministic.unit[None, :], run.parameters)[0]
+    for j, (ax, p) in enumerate(zip(axes, run.parameters)):
+        prior = p.distribution.scipy()
+        lo, hi = prior.ppf([0.001, 0.999])
+        grid = np.linspace(lo, hi, 200)
+        ax.plot(grid, prior.pdf(grid), color="0.4", lw=1.2, label="prior")
+        if draws is not None:
+            ax.hist(draws[:, j], bins=40, range=(lo, hi), density=True, color="tab:blue",
+                    alpha=0.55, label="posterior" + ("" if j in run.active else " (= prior)"))
+        ax.axvline(optimum[j], color="tab:red", ls="--", lw=1, label="deterministic")
+        if run.truth and p.name in run.truth:
+            ax.axvline(run.truth[p.name], color="black", lw=1.2, label="truth")
+        ax.set_title(p.name, fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(fontsize=6)
+    fig.suptitle(f"{run.scenario.name}: prior vs posterior", fontsize=9)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_emulator_test(run: CalibrationRun, path: Path) -> Path | None:
+    """Emulator prediction vs simulation on the held-out runs (seed Figure 4.6)."""
+    test = run.emulator.test
+    if test is None:
+        return None
+    outputs = list(run.emulator.scaling.outputs)
+    fig, axes = _grid(len(outputs), 3.4, 3.2)
+    for ax, output in zip(axes, outputs):
+        mine = run.emulator.row_outputs == output
+        sim, pred = test.simulated[:, mine].ravel(), test.predicted[:, mine].ravel()
+        ax.scatter(sim, pred, s=3, alpha=0.3)
+        lo, hi = min(sim.min(), pred.min()), max(sim.max(), pred.max())
+        ax.plot([lo, hi], [lo, hi], color="black", lw=0.8)
+        stats = test.per_output[output]
+        ax.set_title(f"{output}\nR² {stats['r2']:.4f}, RMSE {stats['rmse']:.3g}", fontsize=8)
+        ax.set_xlabel("simulated", fontsize=8)
+        ax.set_ylabel("emulator", fontsize=8)
+    fig.suptitle(f"{run.scenario.name}: emulator test ({len(test.test_runs)} held-out runs)",
+                 fontsize=9)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_heldout(run: CalibrationRun, folder: Path) -> list[Path]:
+    """Held-out days per output at the scenario's resolution: measured vs predictions."""
+    resolution = run.scenario.resolution
+    physical = run.physical.get(resolution)
+    prior = run.prior.get(resolution)
+    if physical is None:
+        return []
+    paths = []
+    for output in pd.unique(physical.rows["output"]):
+        mine = (physical.rows["output"] == output).to_numpy()
+        times = physical.rows["time"][mine]
+        fig, ax = plt.subplots(figsize=(9, 3.4), constrained_layout=True)
+        prior_mine = (prior.rows["output"] == output).to_numpy()
+        lo, hi = np.quantile(prior.simulated[prior_mine], [0.05, 0.95], axis=1)
+        ax.fill_between(times, lo, hi, color="0.85", label="prior 90 %")
+        if physical.simulated.shape[1] > 1:
+            draws = physical.simulated[mine, :-1]
+            lo, hi = np.quantile(draws, [0.05, 0.95], axis=1)
+            ax.fill_between(times, lo, hi, color="tab:blue", alpha=0.35,
+                            label="posterior physical 90 %")
+            ax.plot(times, draws.mean(axis=1), color="tab:blue", lw=1.2,
+                    label="posterior physical mean")
+        if run.predictive is not None:
+            rows = run.paired.rows.iloc[run.heldout_rows]
+            gp = (rows["output"] == output).to_numpy()
+            if gp.any():
+                lo, hi = np.quantile(run.predictive["samples"][:, gp], [0.05, 0.95], axis=0)
+                ax.plot(rows["time"][gp], lo, color="tab:orange", lw=0.8, ls=":")
+                ax.plot(rows["time"][gp], hi, color="tab:orange", lw=0.8, ls=":",
+                        label="KOH predictive 90 %")
+        ax.plot(times, physical.simulated[mine, -1], color="tab:red", lw=1, ls="--",
+                label="deterministic")
+        ax.plot(times, physical.observed[mine], color="black", lw=1.3, marker=".", ms=3,
+                label="measured")
+        ax.set_title(f"{run.scenario.name}: held-out {resolution} {output}", fontsize=9)
+        ax.legend(fontsize=7, ncol=3)
+        ax.grid(alpha=0.3)
+        path = folder / f"heldout_{output}_{resolution}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def plot_trace(run: CalibrationRun, path: Path) -> Path:
+    """Trace of every sampled quantity per chain (non-centred scale)."""
+    from bpsflow.calibration.bayes import scalar_draws
+
+    draws = scalar_draws(run.posterior, run.labels)
+    fig, axes = _grid(len(draws), 3.0, 1.8)
+    for ax, (name, values) in zip(axes, draws.items()):
+        for chain in values:
+            ax.plot(chain, lw=0.4)
+        rhat = run.convergence.per_quantity[name]["rhat"]
+        ax.set_title(f"{name} (R-hat {rhat:.3f})", fontsize=7)
+        ax.tick_params(labelsize=6)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

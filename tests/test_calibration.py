@@ -1,0 +1,321 @@
+"""Calibration: the emulator, KOH posterior, coverage, deterministic baseline, diagnostics, CLI.
+
+Toy problems with known answers (seed §4.3): a smooth simulator the GP must
+interpolate (and a full scikit-learn GP it must agree with), a simulator with
+a known θ and a known added bias the posterior must recover, repeated truths
+drawn from the model whose credible intervals must cover at their nominal
+rate, a least-squares problem with a known optimum, chains that have not
+mixed, and the command on a short surrogate config.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import special, stats
+from typer.testing import CliRunner
+
+from bpsflow.calibration import bayes
+from bpsflow.calibration.deterministic import calibrate as deterministic_calibrate
+from bpsflow.calibration.deterministic import objective
+from bpsflow.calibration.emulator import (GridEmulator, Hyperparameters, fit_emulator,
+                                          squared_exponential, standardise_unit)
+from bpsflow.calibration.settings import BayesSettings, DeterministicSettings
+from bpsflow.cli import app
+from bpsflow.sampling import latin_hypercube_unit
+
+from conftest import i600_raw, write_config
+
+bayes.configure_jax(2)
+
+
+# ---------------------------------------------------------------------------
+# Toy simulator: one variable input x, calibration parameters u in (0, 1)
+
+
+def toy_simulator(x: np.ndarray, unit: np.ndarray) -> np.ndarray:
+    """η(x, u) for rows x (M,) and runs u (R, k) -> (M, R); smooth, nonlinear in u."""
+    u = np.atleast_2d(unit)
+    out = np.sin(3 * x)[:, None] * (0.5 + u[:, 0])[None, :] + 2.0 * x[:, None] * u[:, 0] ** 2
+    if u.shape[1] > 1:
+        out = out + np.cos(2 * x)[:, None] * u[:, 1][None, :]
+    return out
+
+
+def toy_emulator(k: int = 1, runs: int = 40, rows: int = 12, seed: int = 0):
+    x = np.linspace(0.0, 1.0, rows)
+    unit = latin_hypercube_unit(runs, k, seed)
+    frame = pd.DataFrame({"x": x})
+    outputs = pd.Series(["y"] * rows)
+    emulator = fit_emulator(frame, outputs, toy_simulator(x, unit), unit, points=300,
+                            test_fraction=0.1, random_state=seed)
+    return x, unit, emulator
+
+
+# ---------------------------------------------------------------------------
+# Emulator
+
+
+def test_grid_emulator_equals_the_full_gp_it_factorises():
+    """The Kronecker form is exact: same mean and covariance as a GP on all R*M points."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(7, 2))
+    t = rng.normal(size=(9, 2))
+    y = rng.normal(size=(9, 7))
+    hyper = Hyperparameters(signal_variance=1.7, x_lengthscales=np.array([0.8, 1.3]),
+                            t_lengthscales=np.array([1.1, 2.0]), nugget=0.05)
+    grid = GridEmulator(x, t, y, hyper)
+    inputs = np.array([np.r_[x[m], t[r]] for r in range(9) for m in range(7)])
+    kernel = ConstantKernel(1.7) * RBF(np.r_[0.8, 1.3, 1.1, 2.0]) + WhiteKernel(0.05)
+    gp = GaussianProcessRegressor(kernel, optimizer=None).fit(inputs, y.ravel())
+    t_new = np.array([0.3, -0.4])
+    query = np.hstack([x, np.repeat(t_new[None, :], 7, axis=0)])
+    gp_noiseless = GaussianProcessRegressor(ConstantKernel(1.7) * RBF(np.r_[0.8, 1.3, 1.1, 2.0]),
+                                            optimizer=None, alpha=0.05).fit(inputs, y.ravel())
+    mean, cov = gp_noiseless.predict(query, return_cov=True)
+    np.testing.assert_allclose(grid.predict_mean(t_new[None, :])[0], mean, atol=1e-9)
+    np.testing.assert_allclose(grid.predict_cov(t_new), cov, atol=1e-9)
+    np.testing.assert_allclose(gp.predict(query), mean, atol=1e-9)
+
+
+def test_emulator_interpolates_a_known_smooth_function():
+    x, unit, emulator = toy_emulator(k=2, runs=60)
+    assert emulator.test is not None and emulator.test.r2 > 0.999
+    new = np.array([[0.21, 0.77], [0.64, 0.35], [0.9, 0.1]])
+    predicted = emulator.scaling.y_back(emulator.grid.predict_mean(standardise_unit(new)),
+                                        np.array(["y"] * len(x)))
+    truth = toy_simulator(x, new).T
+    assert np.max(np.abs(predicted - truth)) < 0.02 * np.ptp(truth)
+
+
+def test_squared_exponential_is_the_seed_kernel():
+    a, b = np.array([[0.0, 1.0]]), np.array([[1.0, 3.0]])
+    lengthscales = np.array([2.0, 4.0])
+    expected = np.exp(-0.5 * ((1 / 2) ** 2 + (2 / 4) ** 2))   # seed eq. 20 with beta = 1/l^2
+    assert squared_exponential(a, b, lengthscales)[0, 0] == pytest.approx(expected)
+
+
+# ---------------------------------------------------------------------------
+# KOH posterior
+
+
+def _koh(emulator, observed: np.ndarray, obs_rows: np.ndarray, settings: BayesSettings,
+         laplace: bool = True):
+    y = emulator.scaling.y(observed, np.array(["y"] * len(observed)))
+    data = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(emulator.grid.t.shape[1]),
+                          settings)
+    mass = None
+    if laplace:
+        start = {k: v[0] for k, v in bayes.initial_values(data, None, 1, 0, spread=0.0).items()}
+        approx = bayes.laplace(data, start)
+        init, mass = bayes.laplace_starts(approx, settings.chains, settings.seed), approx.covariance
+    else:
+        init = bayes.initial_values(data, None, settings.chains, settings.seed)
+    posterior = bayes.sample_posterior(data, settings, init, inverse_mass_matrix=mass)
+    return data, y, posterior
+
+
+def test_posterior_concentrates_on_theta_and_discrepancy_recovers_the_bias():
+    x, unit, emulator = toy_emulator(k=1, runs=40, rows=16)
+    truth, bias = 0.3, 0.25
+    rng = np.random.default_rng(4)
+    obs_rows = np.arange(12)
+    observed = toy_simulator(x, np.array([[truth]]))[:, 0][obs_rows] + bias \
+        + 0.01 * rng.standard_normal(len(obs_rows))
+    settings = BayesSettings(chains=2, warmup=300, samples=400, seed=1)
+    data, y, posterior = _koh(emulator, observed, obs_rows, settings)
+    u = special.ndtr(bayes.flat_draws(posterior)["z"][:, 0])
+    assert abs(np.median(u) - truth) < 0.05
+    assert np.std(u) < 0.5 * np.sqrt(1 / 12)        # contracted from the uniform prior
+    flat = bayes.flat_draws(posterior)
+    pick = np.arange(0, len(u), 8)
+    pred = bayes.predictive(emulator.grid, obs_rows, obs_rows, y, u[pick, None],
+                            flat["log_discrepancy_std"][pick],
+                            flat["log_discrepancy_lengthscale"][pick],
+                            flat["log_noise_std"][pick], ard=False)
+    delta = pred.discrepancy.mean() * emulator.scaling.y_std[0]
+    assert delta == pytest.approx(bias, abs=0.06)
+    assert bayes.assess(posterior, {"z": ["theta"]}, settings).per_quantity["theta"]["rhat"] < 1.02
+
+
+def test_credible_intervals_cover_at_their_nominal_rate():
+    """Truths drawn from the model itself: 90 % and 50 % intervals cover ~90 % and ~50 %."""
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=8, seed=2)
+    rng = np.random.default_rng(11)
+    settings = BayesSettings(chains=1, warmup=150, samples=300, seed=3)
+    obs_rows = np.arange(8)
+    xs = emulator.grid.x[obs_rows]
+    d2 = (xs - xs.T) ** 2
+    covered90 = covered50 = 0
+    trials = 30
+    for trial in range(trials):
+        u_true = rng.uniform()
+        sd_delta = np.exp(rng.normal(np.log(0.2), 0.5))
+        lengthscale = np.exp(rng.normal(0.0, 0.75))
+        sd_eps = np.exp(rng.normal(np.log(0.05), 0.5))
+        eta = emulator.grid.predict_mean(standardise_unit(np.array([[u_true]])))[0, obs_rows]
+        delta = rng.multivariate_normal(np.zeros(8), sd_delta ** 2 * np.exp(-0.5 * d2 / lengthscale ** 2)
+                                        + 1e-12 * np.eye(8))
+        y = eta + delta + sd_eps * rng.standard_normal(8)
+        observed = emulator.scaling.y_back(y, np.array(["y"] * 8))
+        _, _, posterior = _koh(emulator, observed, obs_rows, settings, laplace=False)
+        u = special.ndtr(bayes.flat_draws(posterior)["z"][:, 0])
+        covered90 += np.quantile(u, 0.05) <= u_true <= np.quantile(u, 0.95)
+        covered50 += np.quantile(u, 0.25) <= u_true <= np.quantile(u, 0.75)
+    # two-sided binomial tests at the 1 % level
+    assert stats.binomtest(covered90, trials, 0.9).pvalue > 0.01, covered90
+    assert stats.binomtest(covered50, trials, 0.5).pvalue > 0.01, covered50
+
+
+# ---------------------------------------------------------------------------
+# Deterministic baseline
+
+
+def test_deterministic_optimiser_finds_a_known_optimum():
+    x = np.linspace(0, 1, 20)
+    target = np.array([0.23, 0.71])
+
+    def predict(unit):
+        unit = np.atleast_2d(unit)
+        return 100 + 50 * unit[:, :1] * np.sin(4 * x)[None, :] + 30 * unit[:, 1:2] * x[None, :] ** 2
+
+    observed = predict(target)[0]
+    result = deterministic_calibrate(predict, observed, np.array(["y"] * 20), 2,
+                                     DeterministicSettings(starts=4, seed=1))
+    np.testing.assert_allclose(result.unit, target, atol=1e-3)
+    assert result.objective < 1e-8
+    assert objective(observed, observed * 1.1, np.array(["y"] * 20)) > 0
+
+
+# ---------------------------------------------------------------------------
+# Diagnostics
+
+
+def test_diagnostics_known_answers():
+    rng = np.random.default_rng(0)
+    iid = rng.standard_normal((4, 1000))
+    assert bayes.rhat(iid) < 1.01
+    assert 3000 < bayes.ess_bulk(iid) < 5000
+    assert 2500 < bayes.ess_tail(iid) < 5500
+    apart = iid + np.array([0.0, 0.0, 3.0, 3.0])[:, None]     # chains that never met
+    assert bayes.rhat(apart) > 1.5
+    sticky = np.cumsum(rng.standard_normal((4, 1000)), axis=1)  # random walks
+    assert bayes.ess_bulk(sticky) < 100
+
+
+def test_unmixed_chains_are_reported_as_not_converged():
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=8)
+    observed = toy_simulator(x, np.array([[0.4]]))[:, 0]
+    settings = BayesSettings(chains=2, warmup=1, samples=20, seed=0)
+    _, _, posterior = _koh(emulator, observed, np.arange(8), settings, laplace=False)
+    convergence = bayes.assess(posterior, {"z": ["theta"]}, settings)
+    assert not convergence.converged
+    assert any("ESS" in reason for reason in convergence.reasons)
+
+
+# ---------------------------------------------------------------------------
+# The command on a short surrogate config
+
+
+def _short_calibration_config(tmp_path, scenarios: bool = False) -> tuple:
+    raw = i600_raw()
+    raw["model"]["backend"] = "surrogate"
+    raw["model"]["periods"] = [{"name": "cal", "start": "11-08", "end": "11-19"}]
+    raw["model"]["tests"] = [{"name": "H", "period": "cal", "start": "11-08", "days": 12,
+                              "warmup_days": 2, "mode": "heating", "setpoint_c": 30.0,
+                              "setback_c": 24.0,
+                              "outputs": ["heating_power_w", "zone_air_temperature_c"]}]
+    keep = {"glazing_dirt_correction", "wall_stack_coefficient"}
+    for parameter in raw["parameters"]:
+        if parameter["name"] not in keep:
+            distribution = parameter["distribution"]
+            value = {"uniform": lambda d: (d["lower"] + d["upper"]) / 2,
+                     "normal": lambda d: d["mean"], "sampler": lambda d: 0}[distribution["type"]]
+            parameter["distribution"] = {"type": "constant", "value": float(value(distribution))}
+    raw["calibration"] = {
+        "outputs": ["heating_power_w"], "resolution": "daily", "holdout_days": 3,
+        "design": {"runs": 40, "seed": 1}, "emulator": {"points": 200},
+        "bayes": {"chains": 2, "warmup": 150, "samples": 150, "ess_min": 50},
+        "deterministic": {"starts": 2}, "posterior_runs": 10}
+    if scenarios:
+        raw["calibration"]["scenarios"] = [
+            {"name": "D-E", "outputs": ["heating_power_w"], "resolution": "daily"},
+            {"name": "D-ET", "outputs": ["heating_power_w", "zone_air_temperature_c"],
+             "resolution": "daily"}]
+    config = write_config(tmp_path, raw)
+    truth = tmp_path / "truth.yaml"
+    truth.write_text("seed: 1\nvalues: {glazing_dirt_correction: 0.9, wall_stack_coefficient: 1.2}\n")
+    runner = CliRunner()
+    result = runner.invoke(app, ["synth", str(config), "--truth", str(truth)])
+    assert result.exit_code == 0, result.output
+    return config, tmp_path / "run" / "truth" / "measured.csv", tmp_path / "run" / "truth" / "truth.json"
+
+
+def test_cli_calibrate_writes_the_documented_files(tmp_path):
+    config, measured, truth = _short_calibration_config(tmp_path)
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--truth", str(truth), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "run" / "calibration"
+    for name in ("calibration.json", "posterior.parquet", "heldout.csv", "observations.parquet",
+                 "emulator_points.parquet", "figures/prior_posterior.png",
+                 "figures/emulator_test.png", "figures/heldout_heating_power_w_daily.png",
+                 "figures/trace.png"):
+        assert (out / name).is_file(), name
+    record = json.loads((out / "calibration.json").read_text())
+    assert record["diagnostics"]["converged"] is True
+    assert record["diagnostics"]["steps_per_iteration"] > 0
+    assert {p["name"] for p in record["parameters"]} == {"glazing_dirt_correction",
+                                                         "wall_stack_coefficient"}
+    assert all("contraction" in p and "truth_in_90" in p for p in record["parameters"])
+    assert record["emulator"]["holdout"]["r2"] > 0.99
+    models = {row["model"] for row in record["heldout"]}
+    assert models == {"prior", "bayes_gp", "bayes_physical", "deterministic_physical"}
+    posterior = pd.read_parquet(out / "posterior.parquet")
+    assert len(posterior) == 2 * 150
+    assert {"chain", "draw", "glazing_dirt_correction", "noise_std"} <= set(posterior.columns)
+
+
+def test_cli_exits_non_zero_when_not_converged(tmp_path):
+    config, measured, _ = _short_calibration_config(tmp_path)
+    args = ["calibrate", str(config), "--measured", str(measured), "--no-progress",
+            "--warmup", "1", "--samples", "20"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 1, result.output
+    assert "not converged" in result.output.lower()
+    result = CliRunner().invoke(app, args + ["--allow-unconverged"])
+    assert result.exit_code == 0, result.output
+
+
+def test_cli_scenarios_and_deterministic(tmp_path):
+    config, measured, _ = _short_calibration_config(tmp_path, scenarios=True)
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--scenarios", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "run" / "calibration"
+    table = pd.read_csv(out / "scenarios.csv")
+    assert list(table["scenario"]) == ["D-E", "D-ET"]
+    assert "contraction:wall_stack_coefficient" in table.columns
+    assert (out / "scenarios" / "D-ET" / "calibration.json").is_file()
+    assert (out / "figures" / "scenarios.png").is_file()
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--method", "deterministic", "--out",
+                                      str(tmp_path / "det"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    record = json.loads((tmp_path / "det" / "calibration.json").read_text())
+    assert record["diagnostics"] is None
+    assert {row["model"] for row in record["heldout"]} == {"prior", "deterministic_physical"}
+
+
+def test_bad_calibration_input_names_the_key(tmp_path):
+    config, measured, _ = _short_calibration_config(tmp_path)
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--outputs", "no_such_output"])
+    assert result.exit_code == 2
+    assert "calibration.outputs[0]" in result.output
