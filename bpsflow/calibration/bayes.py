@@ -414,20 +414,27 @@ def laplace_starts(approx: Laplace, chains: int, random_state: int,
 
 
 def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None = None,
-                     progress: bool = False, inverse_mass_matrix: np.ndarray | None = None
-                     ) -> Posterior:
+                     progress: bool = False, inverse_mass_matrix: np.ndarray | None = None,
+                     timed_warmup: bool = True) -> Posterior:
     """Run NUTS (NumPyro) with ``settings.chains`` chains; parallel when devices allow.
 
     ``init`` holds per-chain starts (arrays with a leading chain axis);
     ``inverse_mass_matrix`` an initial dense mass matrix (e.g.
     :attr:`Laplace.covariance`) that warm-up goes on adapting. Warm-up and
     sampling run (and are timed) separately; JIT compilation counts in the
-    warm-up time.
+    warm-up time. ``timed_warmup=False`` runs both in one call (NumPyro
+    compiles its sampling loop once per call, ~2 s: repeated small problems
+    save that); warm-up is then neither timed nor its steps recorded.
     """
     import jax
 
     chains = settings.chains
-    method = "parallel" if jax.local_device_count() >= chains and chains > 1 else "sequential"
+    if chains == 1:
+        method = "sequential"
+    elif settings.chain_method != "auto":
+        method = settings.chain_method
+    else:
+        method = "parallel" if jax.local_device_count() >= chains else "vectorized"
     mass = None if inverse_mass_matrix is None or not settings.dense_mass \
         else np.asarray(inverse_mass_matrix)
     mcmc = _mcmc(data.ard, tuple(sorted((k, tuple(map(float, v)))
@@ -438,18 +445,24 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
         init = {k: np.asarray(v)[0] for k, v in init.items()}
     key = jax.random.PRNGKey(settings.seed)
     started = time.perf_counter()
-    mcmc.warmup(key, arrays, init_params=init, extra_fields=("num_steps",),
-                collect_warmup=True)
-    warm = mcmc.get_extra_fields(group_by_chain=True)
-    jax.block_until_ready(mcmc.post_warmup_state)
-    warmed = time.perf_counter()
-    mcmc.run(mcmc.post_warmup_state.rng_key, arrays,
-             extra_fields=("num_steps", "diverging", "adapt_state.step_size"))
+    fields = ("num_steps", "diverging", "adapt_state.step_size")
+    if not timed_warmup:
+        mcmc.run(key, arrays, init_params=init, extra_fields=fields)
+        warm_steps = np.zeros((chains, 0))
+    else:
+        mcmc.warmup(key, arrays, init_params=init, extra_fields=("num_steps",),
+                    collect_warmup=True)
+        warm_steps = np.asarray(mcmc.get_extra_fields(group_by_chain=True)["num_steps"])
+        jax.block_until_ready(mcmc.post_warmup_state)
+        warmed = time.perf_counter()
+        mcmc.run(mcmc.post_warmup_state.rng_key, arrays, extra_fields=fields)
     draws = {k: np.asarray(v) for k, v in mcmc.get_samples(group_by_chain=True).items()}
     done = time.perf_counter()
+    if not timed_warmup:
+        warmed = done
     extra = mcmc.get_extra_fields(group_by_chain=True)
     return Posterior(draws=draws, num_steps=np.asarray(extra["num_steps"]),
-                     warmup_num_steps=np.asarray(warm["num_steps"]),
+                     warmup_num_steps=warm_steps.reshape(chains, -1),
                      diverging=np.asarray(extra["diverging"]),
                      step_size=np.asarray(extra["adapt_state.step_size"])[:, -1],
                      warmup_seconds=warmed - started, sampling_seconds=done - warmed,

@@ -149,6 +149,7 @@ def print_run(run, console: Console) -> None:
         held.add_column(column, justify="left" if column in ("model", "output", "resolution")
                         else "right")
     for r in run.heldout.to_dict("records"):
+        r = {k: (None if _missing(v) else v) for k, v in r.items()}
         temperature = r["cv_rmse"] is None
         held.add_row(r["model"], r["output"], r["resolution"],
                      f"{r['rmse']:.3g} {r['unit']}" if temperature else f"{r['cv_rmse']:.1%}",
@@ -173,6 +174,10 @@ def print_run(run, console: Console) -> None:
         console.print(f"emulator hold-out ({len(test.test_runs)} runs): R² {test.r2:.4f}; "
                       + ", ".join(f"{o} R² {v['r2']:.4f} RMSE {v['rmse']:.3g}"
                                   for o, v in test.per_output.items()))
+
+
+def _missing(value) -> bool:
+    return value is None or (isinstance(value, (float, np.floating)) and not np.isfinite(value))
 
 
 def print_comparison(runs: list, console: Console) -> None:

@@ -49,8 +49,8 @@ def comparison_row(run: CalibrationRun) -> dict:
     for record in run.heldout.to_dict("records"):
         if record["model"] not in ("bayes_physical", "deterministic_physical", "prior"):
             continue
-        metric, value = ("rmse", record["rmse"]) if record["cv_rmse"] is None else \
-            ("cv_rmse", record["cv_rmse"])
+        temperature = record["cv_rmse"] is None or not np.isfinite(record["cv_rmse"])
+        metric, value = ("rmse", record["rmse"]) if temperature else ("cv_rmse", record["cv_rmse"])
         row[f"{record['model']}:{record['output']}:{record['resolution']}:{metric}"] = value
     return row
 

@@ -130,6 +130,7 @@ class BayesSettings(_Strict):
     target_accept: float = Field(default=0.85, gt=0, lt=1)
     max_tree_depth: int = Field(default=8, ge=1, le=15)
     dense_mass: bool = True
+    chain_method: Literal["auto", "parallel", "vectorized", "sequential"] = "auto"
     seed: int = 0
     init: Literal["deterministic", "prior"] = "deterministic"
     laplace: bool = True
