@@ -6,12 +6,16 @@ joint likelihood of simulations and observations (seed eq. 22) is the
 likelihood of the simulations — a constant — times that of the observations
 *conditioned on the simulations*:
 
-    y | y_sim, θ, φ_δ ~ N( m(θ),  C_η(θ) + σ_δ² K_δ(x; ℓ_δ) + σ_ε² I ),
+    y | y_sim, θ, φ_δ ~ N( m(θ),  C_η(θ) + σ_δ² K_δ(x; ℓ_δ) + (σ_ε² + v_em) I ),
 
 with ``m`` and ``C_η`` the emulator's conditional mean and covariance at
 ``(x_obs, θ)`` (:class:`bpsflow.calibration.emulator.GridEmulator`: the
 simulator block is factorised once; each step costs an ``n_obs × n_obs``
-Cholesky). The posterior is seed eq. 21.
+Cholesky) and ``v_em`` the emulator's squared error on held-out runs (the
+GP's own variance ``C_η`` understates it by orders of magnitude). The
+posterior is seed eq. 21. For many observations the ``lowrank`` likelihood
+replaces ``K_δ`` by its FITC approximation on a few inducing inputs and keeps
+the diagonal of ``C_η`` (``O(n m²)`` per step).
 
 Parametrisation (the geometry NUTS sees):
 
@@ -23,9 +27,11 @@ Parametrisation (the geometry NUTS sees):
   scale with normal priors (lognormal priors: median and log-sd from the
   config; seed §4.3.5: ~20 % model bias, ~5 % observation error, in
   standardised output units).
-* a dense mass matrix is adapted in warm-up; chains start around the
-  deterministic optimum (jittered, so R-hat still compares dispersed starts);
-  calibration parameters whose effect on the emulator is negligible are not
+* the posterior mode is found from the deterministic optimum (L-BFGS on JAX
+  gradients); chains start from the Laplace approximation there, widened
+  (so R-hat compares dispersed starts), and its covariance is the initial
+  dense mass matrix that warm-up goes on adapting;
+* calibration parameters whose effect on the emulator is negligible are not
   sampled — their posterior is their prior.
 
 Diagnostics follow Vehtari et al. (2021): rank-normalised split R-hat (the
@@ -45,12 +51,13 @@ from scipy import special, stats
 from bpsflow.calibration.emulator import SQRT12, GridEmulator
 from bpsflow.calibration.settings import BayesSettings
 
-SITES = ("z", "log_discrepancy_std", "log_discrepancy_lengthscale", "log_noise_std")
 _JITTER = 1e-8
 
 
 def configure_jax(devices: int) -> None:
-    """Ask XLA for ``devices`` CPU devices (parallel chains) and float64; call before JAX runs.
+    """Ask XLA for ``devices`` CPU devices (one per chain) and float64.
+
+    Call before JAX runs: parallel chains need one device each.
 
     The device count only takes effect if no JAX computation has run in the
     process yet; otherwise chains run one after another (still correct).
@@ -89,11 +96,16 @@ class KohData:
     priors: dict[str, tuple[float, float]] = field(default_factory=dict)  # name -> (mean, sd) of log
     lowrank: bool = False
     x_inducing: np.ndarray | None = None   # (m, d_x) inducing inputs of δ (low-rank likelihood)
+    extra_variance: np.ndarray | None = None  # (n,) known error variance (emulator error)
 
 
 def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
-             settings: BayesSettings) -> KohData:
-    """Assemble the likelihood's arrays from the emulator and the observation rows."""
+             settings: BayesSettings, extra_variance: np.ndarray | None = None) -> KohData:
+    """Assemble the likelihood's arrays from the emulator and the observation rows.
+
+    ``extra_variance`` (per observation, standardised) is a known error
+    variance added to σ_ε² (the emulator's hold-out error).
+    """
     active = np.asarray(active, dtype=int)
     screened = np.setdiff1d(np.arange(grid.t.shape[1]), active)
     lengthscales = grid.hyper.t_lengthscales
@@ -116,7 +128,9 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
                    t_scaled=grid.t[:, active] / lengthscales[active],
                    inverse_lengthscales=1.0 / lengthscales[active], log_base=log_base,
                    x_obs=x_obs, active=active, n_parameters=grid.t.shape[1],
-                   ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing)
+                   ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing,
+                   extra_variance=None if extra_variance is None
+                   else np.asarray(extra_variance, dtype=float))
 
 
 def inducing_inputs(x: np.ndarray, count: int, random_state: int) -> np.ndarray:
@@ -271,12 +285,13 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
         if lowrank:
             mean, variance = _emulator_moments(z, d, full=False)
             numpyro.factor("y", lowrank_log_density(
-                d["y"] - mean, variance + jnp.exp(2 * log_sd_eps), jnp.exp(log_sd_delta),
-                log_ls, d, ard))
+                d["y"] - mean, variance + jnp.exp(2 * log_sd_eps) + d["extra_variance"],
+                jnp.exp(log_sd_delta), log_ls, d, ard))
             return
         mean, cov = _emulator_moments(z, d)
         n = d["y"].shape[0]
         total = (cov + jnp.exp(2 * log_sd_delta) * _discrepancy_kernel(log_ls, d, ard)
+                 + jnp.diag(d["extra_variance"])
                  + (jnp.exp(2 * log_sd_eps) + _JITTER) * jnp.eye(n))
         numpyro.factor("y", gaussian_log_density(total, d["y"] - mean))
 
@@ -296,7 +311,9 @@ def model_arrays(data: KohData) -> dict:
             "x_values": data.x_values, "signal_variance": np.float64(data.signal_variance),
             "t_scaled": data.t_scaled, "inverse_lengthscales": data.inverse_lengthscales,
             "log_base": data.log_base, "x_obs": x, "x_sqdist": x_sqdist,
-            "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1]))}
+            "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1])),
+            "extra_variance": np.zeros(len(data.y)) if data.extra_variance is None
+            else data.extra_variance}
 
 
 # ---------------------------------------------------------------------------
@@ -416,39 +433,91 @@ def laplace_starts(approx: Laplace, chains: int, random_state: int,
 def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None = None,
                      progress: bool = False, inverse_mass_matrix: np.ndarray | None = None,
                      timed_warmup: bool = True) -> Posterior:
-    """Run NUTS (NumPyro) with ``settings.chains`` chains; parallel when devices allow.
+    """Run NUTS (NumPyro) with ``settings.chains`` chains, in parallel groups of one per device.
 
     ``init`` holds per-chain starts (arrays with a leading chain axis);
     ``inverse_mass_matrix`` an initial dense mass matrix (e.g.
-    :attr:`Laplace.covariance`) that warm-up goes on adapting. Warm-up and
-    sampling run (and are timed) separately; JIT compilation counts in the
-    warm-up time. ``timed_warmup=False`` runs both in one call (NumPyro
-    compiles its sampling loop once per call, ~2 s: repeated small problems
-    save that); warm-up is then neither timed nor its steps recorded.
+    :attr:`Laplace.covariance`) that warm-up goes on adapting.
+
+    Chains run ``settings.parallel_chains`` at a time (one XLA device each).
+    By default all at once for small problems (up to 100 observations: each
+    group compiles NumPyro's loops again, ~5 s) and one per core otherwise:
+    measured on 2 cores with 300 observations, 4 devices sharing the 2 cores
+    ran each leapfrog step ~5 times slower than 2 devices did (2.2 times less
+    throughput), and vectorised chains were slower still.
+
+    Warm-up and sampling run (and are timed) separately; JIT compilation
+    counts in the warm-up time. ``timed_warmup=False`` runs both in one call
+    (NumPyro compiles its sampling loop once per call, ~2 s: repeated small
+    problems save that); warm-up is then neither timed nor its steps recorded.
     """
     import jax
 
     chains = settings.chains
+    devices = max(1, jax.local_device_count())
     if chains == 1:
-        method = "sequential"
-    elif settings.chain_method != "auto":
-        method = settings.chain_method
+        method, group = "sequential", 1
+    elif settings.chain_method not in ("auto", "parallel"):
+        method, group = settings.chain_method, chains
     else:
-        method = "parallel" if jax.local_device_count() >= chains else "vectorized"
+        wanted = settings.parallel_chains or (
+            chains if len(data.y) <= _SMALL_PROBLEM else _cores())
+        method, group = "parallel", max(1, min(chains, devices, wanted))
+        if group == 1:
+            method, group = "sequential", chains
     mass = None if inverse_mass_matrix is None or not settings.dense_mass \
         else np.asarray(inverse_mass_matrix)
-    mcmc = _mcmc(data.ard, tuple(sorted((k, tuple(map(float, v)))
-                                        for k, v in data.priors.items())),
-                 data.lowrank, settings, method, progress, mass)
+    priors = tuple(sorted((k, tuple(map(float, v))) for k, v in data.priors.items()))
     arrays = model_arrays(data)
-    if init is not None and chains == 1:   # NumPyro takes one chain's start unbatched
-        init = {k: np.asarray(v)[0] for k, v in init.items()}
-    key = jax.random.PRNGKey(settings.seed)
+    parts = []
+    warmup_seconds = sampling_seconds = 0.0
+    for first in range(0, chains, group):
+        size = min(group, chains - first)
+        part_settings = settings.model_copy(update={"chains": size})
+        mcmc = _mcmc(data.ard, priors, data.lowrank, part_settings,
+                     method if size > 1 else "sequential", progress, mass)
+        part_init = None if init is None else {k: np.asarray(v)[first:first + size]
+                                               for k, v in init.items()}
+        if part_init is not None and size == 1:   # NumPyro takes one chain's start unbatched
+            part_init = {k: v[0] for k, v in part_init.items()}
+        key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), first)
+        result = _run(mcmc, key, arrays, part_init, timed_warmup)
+        parts.append(result)
+        warmup_seconds += result["warmup_seconds"]
+        sampling_seconds += result["sampling_seconds"]
+    draws = {k: np.concatenate([p["draws"][k] for p in parts]) for k in parts[0]["draws"]}
+
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([p[name] for p in parts])
+
+    groups = -(-chains // group)
+    label = method if groups == 1 else f"{method} ({groups} groups of {group})"
+    return Posterior(draws=draws, num_steps=joined("num_steps"),
+                     warmup_num_steps=joined("warmup_num_steps"),
+                     diverging=joined("diverging"), step_size=joined("step_size"),
+                     warmup_seconds=warmup_seconds, sampling_seconds=sampling_seconds,
+                     chain_method=label)
+
+
+_SMALL_PROBLEM = 100
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+        (os.cpu_count() or 1)
+
+
+def _run(mcmc, key, arrays: dict, init: dict | None, timed_warmup: bool) -> dict:
+    """One NumPyro MCMC call: draws and sampler statistics grouped by chain."""
+    import jax
+
+    chains = mcmc.num_chains
     started = time.perf_counter()
     fields = ("num_steps", "diverging", "adapt_state.step_size")
     if not timed_warmup:
         mcmc.run(key, arrays, init_params=init, extra_fields=fields)
         warm_steps = np.zeros((chains, 0))
+        warmed = None
     else:
         mcmc.warmup(key, arrays, init_params=init, extra_fields=("num_steps",),
                     collect_warmup=True)
@@ -458,18 +527,17 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
         mcmc.run(mcmc.post_warmup_state.rng_key, arrays, extra_fields=fields)
     draws = {k: np.asarray(v) for k, v in mcmc.get_samples(group_by_chain=True).items()}
     done = time.perf_counter()
-    if not timed_warmup:
-        warmed = done
+    warmed = done if warmed is None else warmed
     extra = mcmc.get_extra_fields(group_by_chain=True)
-    return Posterior(draws=draws, num_steps=np.asarray(extra["num_steps"]),
-                     warmup_num_steps=warm_steps.reshape(chains, -1),
-                     diverging=np.asarray(extra["diverging"]),
-                     step_size=np.asarray(extra["adapt_state.step_size"])[:, -1],
-                     warmup_seconds=warmed - started, sampling_seconds=done - warmed,
-                     chain_method=method)
+    return {"draws": draws, "num_steps": np.asarray(extra["num_steps"]).reshape(chains, -1),
+            "warmup_num_steps": warm_steps.reshape(chains, -1),
+            "diverging": np.asarray(extra["diverging"]).reshape(chains, -1),
+            "step_size": np.asarray(extra["adapt_state.step_size"]).reshape(chains, -1)[:, -1],
+            "warmup_seconds": warmed - started, "sampling_seconds": done - warmed}
 
 
 _MCMC_CACHE: dict = {}
+_JIT_MODEL_ARGS = True
 
 
 def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, method: str,
@@ -491,7 +559,7 @@ def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, meth
                   inverse_mass_matrix=inverse_mass_matrix)
     mcmc = MCMC(kernel, num_warmup=max(settings.warmup, 1), num_samples=settings.samples,
                 num_chains=settings.chains, chain_method=method, progress_bar=progress,
-                jit_model_args=True)
+                jit_model_args=_JIT_MODEL_ARGS)
     if inverse_mass_matrix is None:
         _MCMC_CACHE.clear()
         _MCMC_CACHE[key] = mcmc
@@ -645,7 +713,8 @@ class Predictive:
 def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray,
                y_obs: np.ndarray, unit: np.ndarray, log_sd_delta: np.ndarray,
                log_lengthscale: np.ndarray, log_sd_eps: np.ndarray, ard: bool,
-               x_inducing: np.ndarray | None = None, random_state: int = 0) -> Predictive:
+               x_inducing: np.ndarray | None = None, extra_variance: np.ndarray | None = None,
+               random_state: int = 0) -> Predictive:
     """KOH posterior predictive of new observations at ``target_rows`` (standardised).
 
     For each draw: the Gaussian conditional of ``y(target)`` (emulator +
@@ -654,6 +723,8 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
     ``target_rows`` may repeat ``obs_rows`` (δ at the calibration rows).
     With ``x_inducing`` (the low-rank likelihood) δ's covariance is the same
     FITC approximation and the emulator keeps only its variances.
+    ``extra_variance`` (per grid row, standardised) is the known error
+    variance of the likelihood (the emulator's hold-out error).
     """
     rng = np.random.default_rng(random_state)
     rows = np.concatenate([obs_rows, target_rows])
@@ -674,7 +745,8 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
             nystrom = k_nm @ np.linalg.solve(k_mm, k_nm.T)
             k_delta = np.exp(2 * log_sd_delta[i]) * (
                 nystrom + np.diag(np.clip(1.0 - np.diag(nystrom), 0.0, None)))
-        noise = (np.exp(2 * log_sd_eps[i]) + _JITTER) * np.eye(len(rows))
+        extra = np.zeros(len(rows)) if extra_variance is None else extra_variance[rows]
+        noise = np.diag(np.exp(2 * log_sd_eps[i]) + _JITTER + extra)
         total = cov_eta + k_delta + noise
         chol = np.linalg.cholesky(total[:n_obs, :n_obs])
         resid = np.linalg.solve(chol.T, np.linalg.solve(chol, y_obs - mean_all[i, :n_obs]))

@@ -13,7 +13,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from bpsflow.calibration.settings import CalibrationSettings, Scenario
+from bpsflow.calibration.settings import CalibrationSettings
 from bpsflow.config import Config
 from bpsflow.errors import BpsflowError
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import dataclass, field, replace
-from datetime import timedelta
+from datetime import date, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +38,7 @@ from bpsflow.calibration.settings import (DEFAULT_VARIABLE_INPUTS, CalibrationSe
 from bpsflow.config import Config, Parameter, Test, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import HEATING_OFF_C, day_setpoints
+from bpsflow.instances import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 from bpsflow.sampling import latin_hypercube_unit
 
 DESIGN_DIR = "design"
@@ -332,7 +332,7 @@ def _aggregate(config: Config, test: Test, output: str, hours: pd.DatetimeIndex,
     heating, cooling = hourly_setpoints(config, hours)
     system = system_of(config, output)
     on = np.ones(len(hours), bool) if system is None else \
-        (heating > HEATING_OFF_C) if system == "heating" else (cooling < 100.0)
+        (heating > HEATING_OFF_C) if system == "heating" else (cooling < COOLING_OFF_C)
     if resolution == "hourly":
         frame = pd.DataFrame({"time": hours, "output": output, "test": test.name, "on": on})
         return frame, observed, ensemble
@@ -441,13 +441,14 @@ def variable_inputs(config: Config, rows: pd.DataFrame, resolution: str, names: 
     DataFrame
         One column per input, aligned with ``rows``.
     """
-    from bpsflow.surrogate.forcing import hour_of_year
     from bpsflow.weather import read_epw
 
     epw = read_epw(config.model.weather)
     hours_per_row = 24 if resolution == "daily" else 1
     starts = rows["time"] if resolution == "daily" else rows["time"] - pd.Timedelta(hours=1)
-    first_row = np.array([hour_of_year(t.date()) + t.hour for t in starts])
+    # EPW rows of a non-leap weather year: row h holds the hour h..h+1 after 1 January 00:00
+    first_row = np.array([(date(2001, t.month, t.day) - date(2001, 1, 1)).days * 24 + t.hour
+                          for t in starts])
     n_rows = epw.n_hours
 
     def mean_over(column: str, offset: int, length: int) -> np.ndarray:
@@ -486,7 +487,7 @@ def _setpoint_input(config: Config, rows: pd.DataFrame, starts: pd.Series, resol
     modes = {t.name: t.mode for t in config.model.tests}
     mode = np.repeat(rows["test"].map(modes).to_numpy(), n)
     value = np.where(mode == "heating", heating, np.where(mode == "cooling", cooling, np.nan))
-    value[(value <= HEATING_OFF_C) | (value >= 100.0)] = np.nan
+    value[(value <= HEATING_OFF_C) | (value >= COOLING_OFF_C)] = np.nan
     value = value.reshape(-1, n)
     with np.errstate(invalid="ignore"):
         mean = np.nanmean(value, axis=1) if np.isfinite(value).any() else np.zeros(len(value))

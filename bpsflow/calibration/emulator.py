@@ -72,6 +72,7 @@ class Scaling:
         return (frame[list(self.x_columns)].to_numpy(dtype=float) - self.x_mean) / self.x_std
 
     def output_index(self, outputs) -> np.ndarray:
+        """Position in :attr:`outputs` of each of ``outputs``."""
         lookup = {o: i for i, o in enumerate(self.outputs)}
         return np.array([lookup[o] for o in outputs])
 
@@ -234,7 +235,12 @@ class GridEmulator:
 
 @dataclass
 class EmulatorTest:
-    """Hold-out test of the emulator on whole runs (seed Figure 4.6)."""
+    """Hold-out test of the emulator on whole runs (seed Figure 4.6).
+
+    ``per_output[o]["mse_standardised"]`` is the emulator's squared error in
+    standardised units, which the calibration adds to the observation
+    error (the GP's own variance understates it).
+    """
 
     r2: float
     rmse_standardised: float
@@ -310,6 +316,13 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
             per_output[o] = {
                 "r2": r_squared(sim_units[:, mine], pred_units[:, mine]),
                 "rmse": float(np.sqrt(np.mean((sim_units[:, mine] - pred_units[:, mine]) ** 2))),
+                # R² of the runs' departures from the row mean: how well the
+                # emulator predicts what the calibration parameters do
+                "r2_parameter_effect": r_squared(
+                    sim_units[:, mine] - sim_units[:, mine].mean(axis=0),
+                    pred_units[:, mine] - sim_units[:, mine].mean(axis=0)),
+                "mse_standardised": float(np.mean((ys[test_runs][:, mine]
+                                                   - predicted[:, mine]) ** 2)),
             }
         test = EmulatorTest(r2=r_squared(ys[test_runs], predicted),
                             rmse_standardised=float(np.sqrt(np.mean((ys[test_runs] - predicted) ** 2))),

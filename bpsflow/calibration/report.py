@@ -162,6 +162,9 @@ def calibration_record(run: CalibrationRun) -> dict:
                             if run.koh.lowrank else
                             "observations given the simulations, full covariances"),
             "sampled_parameters": [run.parameters[i].name for i in run.active],
+            "emulator_error_std_standardised": None if run.extra_variance is None else {
+                o: float(np.sqrt(run.emulator.test.per_output[o]["mse_standardised"]))
+                for o in scaling.outputs},
             "laplace_seconds": run.timings.get("laplace_seconds")}
         record["discrepancy"] = {
             "std_standardised": _summary(np.exp(flat["log_discrepancy_std"])),

@@ -110,6 +110,15 @@ class BayesSettings(_Strict):
     (widened 1.5 times, so R-hat compares dispersed chains) and its covariance
     is the initial dense mass matrix.
 
+    ``emulator_error: holdout`` adds the emulator's mean squared error on the
+    held-out runs (per output, standardised) to every observation's variance:
+    the GP's own conditional variance is far smaller than its error on new
+    runs, and without this the calibration parameters absorb the emulator's
+    error and their posterior is too narrow.
+
+    Chains run in parallel, ``parallel_chains`` at a time (default: all of
+    them for up to 100 observations, else one per CPU core).
+
     ``likelihood``: ``exact`` is the Gaussian likelihood of the observations
     given the simulations with full covariances (one ``n × n`` Cholesky per
     step); ``lowrank`` replaces δ's covariance by its FITC approximation on
@@ -126,11 +135,12 @@ class BayesSettings(_Strict):
 
     chains: int = Field(default=4, ge=1)
     warmup: int = Field(default=500, ge=0)
-    samples: int = Field(default=500, ge=1)
+    samples: int = Field(default=1000, ge=1)
     target_accept: float = Field(default=0.85, gt=0, lt=1)
     max_tree_depth: int = Field(default=8, ge=1, le=15)
     dense_mass: bool = True
     chain_method: Literal["auto", "parallel", "vectorized", "sequential"] = "auto"
+    parallel_chains: int | None = Field(default=None, ge=1)
     seed: int = 0
     init: Literal["deterministic", "prior"] = "deterministic"
     laplace: bool = True
@@ -139,9 +149,10 @@ class BayesSettings(_Strict):
         default_factory=lambda: LogNormalPrior(median=1.0, log_sd=0.75))
     noise_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.05))
     ard: bool = False
+    emulator_error: Literal["holdout", "none"] = "holdout"
     likelihood: Literal["auto", "exact", "lowrank"] = "auto"
     exact_max_observations: int = Field(default=150, ge=1)
-    inducing_points: int = Field(default=64, ge=4)
+    inducing_points: int = Field(default=32, ge=4)
     screen_effect: float = Field(default=0.01, ge=0)
     rhat_max: float = Field(default=1.01, gt=1)
     ess_min: float = Field(default=400, ge=0)

@@ -78,6 +78,7 @@ class CalibrationRun:
     truth: dict[str, float] | None = None
     units: dict[str, str] = field(default_factory=dict)
     labels: dict[str, list[str]] = field(default_factory=dict)   # names of vector sites
+    extra_variance: np.ndarray | None = None   # per row: emulator error variance (standardised)
     timings: dict[str, float] = field(default_factory=dict)
 
 
@@ -203,7 +204,15 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
     emulator = run.emulator
     outputs_obs = run.paired.rows["output"].to_numpy()[run.obs_rows]
     y = emulator.scaling.y(run.paired.observed[run.obs_rows], outputs_obs)
-    data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs)
+    extra = None
+    if bs.emulator_error == "holdout" and emulator.test is not None:
+        # per grid row: the emulator's hold-out squared error of the row's output
+        mse = np.array([emulator.test.per_output[o]["mse_standardised"]
+                        for o in emulator.scaling.outputs])
+        extra = mse[emulator.scaling.output_index(run.paired.rows["output"].to_numpy())]
+    run.extra_variance = extra
+    data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs,
+                          None if extra is None else extra[run.obs_rows])
     z_start = special.ndtri(np.clip(run.deterministic.unit, 1e-6, 1 - 1e-6)) \
         if bs.init == "deterministic" else None
     inverse_mass = None
@@ -236,12 +245,12 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
         emulator.grid, run.obs_rows, run.heldout_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
         flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
-        random_state=bs.seed)
+        extra_variance=extra, random_state=bs.seed)
     at_obs = bayes.predictive(
         emulator.grid, run.obs_rows, run.obs_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
         flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
-        random_state=bs.seed)
+        extra_variance=extra, random_state=bs.seed)
     outputs_h = run.paired.rows["output"].to_numpy()[run.heldout_rows]
     scaling = emulator.scaling
     run.predictive = {
