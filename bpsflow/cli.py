@@ -480,6 +480,25 @@ def calibrate(config: Path = ConfigArg,
             raise typer.Exit(code=1)
 
 
+@app.command()
+@_friendly
+def diagnose(config: Path = ConfigArg,
+             measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
+             out: Optional[Path] = typer.Option(None, help="Output folder (default "
+                                                "RUN_DIR/diagnosis)."),
+             backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+             jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes "
+                                                "for the simulations."),
+             run_dir: Optional[Path] = RunDirOption,
+             no_progress: bool = typer.Option(False, help="No progress bars.")) -> None:
+    """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
+    from bpsflow.diagnosis.command import run_diagnose
+
+    cfg = _load(config, run_dir)
+    run_diagnose(cfg, measured, out.resolve() if out else None, backend=backend, jobs=jobs,
+                 show_progress=not no_progress, console=console)
+
+
 def main() -> None:  # pragma: no cover
     app(prog_name="bpsflow")
 

@@ -33,6 +33,7 @@ from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, Validati
                       field_validator, model_validator)
 
 from bpsflow.calibration.settings import CalibrationSettings
+from bpsflow.diagnosis.settings import DiagnosisSettings
 from bpsflow.distributions import Constant, Distribution, Empirical, Sampler
 from bpsflow.errors import BpsflowError
 
@@ -197,8 +198,22 @@ class Boundary(_Strict):
 
 
 class Model(_Strict):
+    """The model and how it runs.
+
+    ``idf_objects`` lists IDF snippet files whose objects are appended to
+    ``idf`` (e.g. the extensions ``bpsflow diagnose`` tries); both backends and
+    ``bpsflow check`` read the model as :func:`bpsflow.surrogate.idf.model_text`
+    assembles it, so a parameter may target a field of an object that lives in
+    a snippet. Paths are relative to the config file that lists them; a
+    relative ``Schedule:File`` name inside a snippet is relative to the
+    snippet. With ``extends:``, a child's ``idf_objects`` are *appended* to its
+    base's (a snippet listed by both is kept once): a config extending another
+    adds snippets, it cannot remove its base's.
+    """
+
     backend: Literal["energyplus", "surrogate", "auto"] = "auto"
     idf: Path
+    idf_objects: list[Path] = Field(default_factory=list)
     weather: Path
     energyplus: Path | None = None
     year: int = 2025
@@ -246,6 +261,7 @@ class Config(_Strict):
     execution: Execution = Field(default_factory=Execution)
     validation: ValidationSettings = Field(default_factory=ValidationSettings)
     calibration: CalibrationSettings | None = None
+    diagnosis: DiagnosisSettings | None = None
     #: Where the config came from (set by :func:`load_config`).
     source: Path | None = Field(default=None, exclude=True)
 
@@ -421,6 +437,10 @@ def _absolute_paths(raw: dict, base: Path) -> dict:
     model = raw.get("model")
     for key in ("idf", "weather", "energyplus"):
         fix(model, key)
+    if isinstance(model, dict) and isinstance(model.get("idf_objects"), list):
+        model["idf_objects"] = [str((base / item).resolve()) if isinstance(item, str)
+                                and not Path(item).is_absolute() else item
+                                for item in model["idf_objects"]]
     fix(model.get("boundary") if isinstance(model, dict) else None, "file")
     fix(raw.get("execution"), "run_dir")
     for parameter in raw.get("parameters") or []:
@@ -441,6 +461,10 @@ def _merge(base: dict, child: dict) -> dict:
                     merged[key][by_name[name]] = parameter
                 else:
                     merged[key].append(parameter)
+        elif key == "idf_objects" and isinstance(value, list) \
+                and isinstance(merged.get(key), list):
+            # A child adds snippets to its base's model (see Model).
+            merged[key] = merged[key] + [v for v in value if v not in merged[key]]
         elif isinstance(value, dict) and isinstance(merged.get(key), dict):
             merged[key] = _merge(merged[key], value)
         else:
@@ -477,7 +501,8 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Co
     -----
     ``extends: BASE.yaml`` reads the base config first and merges this file
     over it: mappings merge key by key, ``parameters`` by name (a parameter of
-    the same name replaces the base's, a new name is appended).
+    the same name replaces the base's, a new name is appended) and
+    ``model.idf_objects`` by appending the child's snippets to the base's.
 
     Raises
     ------
@@ -512,6 +537,15 @@ def _resolve_paths(config: Config, path: Path) -> Config:
     model.idf = _resolve(model.idf, base)
     if not model.idf.is_file():
         raise BpsflowError(f"model.idf: IDF file not found: {model.idf}", source=path)
+    snippets: list[Path] = []
+    for i, snippet in enumerate(model.idf_objects):
+        snippet = _resolve(snippet, base)
+        if not snippet.is_file():
+            raise BpsflowError(f"model.idf_objects[{i}]: IDF snippet file not found: "
+                               f"{snippet}", source=path)
+        if snippet not in snippets:
+            snippets.append(snippet)
+    model.idf_objects = snippets
     model.weather = resolve_weather(model.weather, base)
     if model.energyplus is not None:
         model.energyplus = _resolve(model.energyplus, base)

@@ -203,9 +203,9 @@ def add_detailed_outputs(config: Config) -> list[str]:
 
 def _idf(config: Config):
     # The surrogate's IDD-free reader: geometry and fields without EnergyPlus installed.
-    from bpsflow.surrogate.idf import read_idf
+    from bpsflow.surrogate.idf import model_objects
 
-    return read_idf(config.model.idf)
+    return model_objects(config.model)
 
 
 def _surface(idf, name: str):

@@ -21,7 +21,7 @@ from pathlib import Path
 
 
 from bpsflow.boundary import SEQUENCES_FILE, period_hours, read_sequences, write_boundary_file
-from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Parameter, Period, Test,
+from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Model, Parameter, Period, Test,
                             WeatherTarget, period_dates)
 from bpsflow.errors import BpsflowError
 from bpsflow.weather import perturb, read_epw, write_epw
@@ -64,6 +64,27 @@ def open_idf(path: Path, idd: Path):
         raise BpsflowError(f"eppy could not parse the IDF against {idd}: {exc}", source=path) from None
 
 
+def open_model(model: Model, idd: Path):
+    """Parse the whole model (``model.idf`` and its ``idf_objects`` snippets) with eppy.
+
+    The text is :func:`bpsflow.surrogate.idf.model_text`, the one assembly of
+    the model both backends read.
+    """
+    from io import StringIO
+
+    from eppy.modeleditor import IDF
+
+    from bpsflow.surrogate.idf import describe_model, model_text
+
+    text = model_text(model)
+    _set_idd(str(idd))
+    try:
+        return IDF(StringIO(text))
+    except Exception as exc:
+        raise BpsflowError(f"eppy could not parse the model ({describe_model(model)}) against "
+                           f"{idd}: {exc}") from None
+
+
 @dataclass(frozen=True)
 class FieldRef:
     """A resolved IDF field: object type (upper case), index among its type, field name."""
@@ -102,13 +123,20 @@ def resolve_targets(config: Config, idf) -> ResolvedTargets:
             elif isinstance(target, BoundaryTarget):
                 resolved.boundary.setdefault(parameter.name, []).append(target.boundary)
             else:
-                refs = _resolve_idf_target(target, idf, parameter, where, source, config.model.idf)
+                refs = _resolve_idf_target(target, idf, parameter, where, source,
+                                           _model_files(config))
                 resolved.idf_fields.setdefault(parameter.name, []).extend(refs)
     return resolved
 
 
+def _model_files(config: Config) -> str:
+    from bpsflow.surrogate.idf import describe_model
+
+    return describe_model(config.model)
+
+
 def _resolve_idf_target(target: IdfTarget, idf, parameter: Parameter, where: str,
-                        source, idf_path: Path) -> list[FieldRef]:
+                        source, idf_path: Path | str) -> list[FieldRef]:
     object_type = target.object.upper()
     if object_type not in idf.idfobjects:
         raise BpsflowError(f"{where}.object: '{target.object}' is not an EnergyPlus object type "
@@ -287,7 +315,7 @@ def build_template(config: Config, period: Period, idd: Path) -> Template:
     eppy does the parsing and the writing once; each instance then only joins
     strings, so writing an instance costs well under a millisecond.
     """
-    idf = open_idf(config.model.idf, idd)
+    idf = open_model(config.model, idd)
     targets = resolve_targets(config, idf)
     for object_type in _REPLACED_TYPES:
         for obj in list(idf.idfobjects.get(object_type, [])):
@@ -313,19 +341,37 @@ def build_template(config: Config, period: Period, idd: Path) -> Template:
         idf.idfobjects[object_type][index][field_name] = _SLOT.format(k)
     schedule_files = {o.Name.upper(): o for o in idf.idfobjects["SCHEDULE:FILE"]}
     schedule_slots = 0
+    filled: set[str] = set()
     if config.model.boundary is not None:
         for surface, spec in config.model.boundary.surfaces.items():
             if spec.schedule.upper() not in schedule_files:
                 raise BpsflowError(
                     f"model.boundary.surfaces.{surface}.schedule: no Schedule:File named "
-                    f"'{spec.schedule}' in {config.model.idf}", source=config.source)
+                    f"'{spec.schedule}' in {_model_files(config)}", source=config.source)
             schedule_files[spec.schedule.upper()].File_Name = _SLOT.format(len(ordered) + schedule_slots)
+            filled.add(spec.schedule.upper())
             schedule_slots += 1
+    _check_schedule_files(config, filled)
     text = idf.idfstr() + "\n" + _period_text(config, period)
     pieces = _SLOT_PATTERN.split(text)
     return Template(pieces=pieces[0::2], order=[int(n) for n in pieces[1::2]],
                     slots=[slot for _, slot in ordered], schedule_slots=schedule_slots,
                     targets=targets)
+
+
+def _check_schedule_files(config: Config, filled: set[str]) -> None:
+    """Every Schedule:File the instances keep must name a file that exists.
+
+    EnergyPlus would stop with a fatal error in every instance; this names
+    the schedule and the file that declares it before anything runs.
+    """
+    from bpsflow.surrogate.idf import model_objects
+
+    for obj in model_objects(config.model).of_type("SCHEDULE:FILE"):
+        file_name = obj.get("File Name").strip()
+        if obj.name.upper() not in filled and not Path(file_name).is_file():
+            raise BpsflowError(f"Schedule:File '{obj.name}' (in {obj.source}): its file "
+                               f"'{file_name}' does not exist", source=config.source)
 
 
 @dataclass

@@ -32,11 +32,20 @@ TRUTH_FILE = "truth.json"
 
 
 class Noise(BaseModel):
-    """Sensor noise of one output: ``bound`` is 3 standard deviations."""
+    """Sensor noise of one output: ``bound`` is 3 standard deviations.
+
+    ``autocorrelation`` (in [0, 1), default 0: independent hours) is the lag-1
+    coefficient φ of an AR(1) process for the hourly noise,
+    ``e_t = φ e_(t-1) + sqrt(1 - φ²) z_t`` with ``z_t`` standard normal and
+    ``e_0 = z_0``, so every hour keeps the standard deviation ``bound / 3``
+    (a slowly drifting sensor rather than white noise). The process restarts
+    at every gap in the hourly timestamps (between test windows).
+    """
 
     model_config = ConfigDict(extra="forbid")
     kind: Literal["absolute", "relative"]
     bound: float = Field(ge=0)
+    autocorrelation: float = Field(default=0.0, ge=0.0, lt=1.0)
 
 
 class Truth(BaseModel):
@@ -89,11 +98,54 @@ def truth_sample(config: Config, truth: Truth) -> dict[str, float]:
             for p in config.parameters}
 
 
-def add_noise(values: np.ndarray, noise: Noise, rng: np.random.Generator) -> np.ndarray:
-    """Gaussian sensor noise with standard deviation ``bound / 3`` (absolute or relative)."""
+def add_noise(values: np.ndarray, noise: Noise, rng: np.random.Generator,
+              starts: np.ndarray | None = None) -> np.ndarray:
+    """Gaussian sensor noise with standard deviation ``bound / 3`` (absolute or relative).
+
+    Parameters
+    ----------
+    values : ndarray
+        The true hourly values, in time order.
+    noise : Noise
+        Bound (3 standard deviations) and lag-1 autocorrelation of the noise.
+    rng : Generator
+        The random stream (one standard normal draw per value, whatever the
+        autocorrelation, so the stream's later use does not depend on it).
+    starts : ndarray of int, optional
+        Positions where a new run of consecutive hours begins (the AR(1)
+        process restarts there); default: one run.
+    """
     std = noise.bound / 3.0
     scale = std if noise.kind == "absolute" else std * np.abs(values)
-    return values + rng.standard_normal(values.shape) * scale
+    return values + ar1_noise(rng.standard_normal(values.shape), noise.autocorrelation,
+                              starts) * scale
+
+
+def ar1_noise(innovations: np.ndarray, autocorrelation: float,
+              starts: np.ndarray | None = None) -> np.ndarray:
+    """Unit-variance AR(1) noise from standard normal ``innovations``.
+
+    ``e_0 = z_0`` and ``e_t = φ e_(t-1) + sqrt(1 - φ²) z_t`` within each run
+    beginning at ``starts`` (stationary from the first value); φ = 0 returns
+    the innovations unchanged.
+    """
+    if autocorrelation == 0.0 or innovations.size == 0:
+        return innovations
+    from scipy.signal import lfilter
+
+    phi = float(autocorrelation)
+    gain = np.sqrt(1.0 - phi * phi)
+    bounds = sorted({0, *(int(s) for s in (starts if starts is not None else ())),
+                     len(innovations)})
+    out = np.empty_like(innovations, dtype=float)
+    for begin, end in zip(bounds[:-1], bounds[1:]):
+        if end <= begin:
+            continue
+        out[begin] = innovations[begin]
+        if end - begin > 1:
+            out[begin + 1:end], _ = lfilter([gain], [1.0, -phi], innovations[begin + 1:end],
+                                            zi=[phi * innovations[begin]])
+    return out
 
 
 def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Truth) -> pd.DataFrame:
@@ -102,9 +154,11 @@ def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Trut
     wide = (outputs.drop_duplicates(["timestamp", "output"])
             .pivot(index="timestamp", columns="output", values="value").sort_index())
     rng = np.random.default_rng(truth.seed)
+    gaps = np.diff(wide.index.to_numpy()) != np.timedelta64(1, "h")
+    starts = np.flatnonzero(gaps) + 1
     for output in wide.columns:
         noise = truth.noise.get(output) or default_noise(config.outputs[output].unit)
-        wide[output] = add_noise(wide[output].to_numpy(), noise, rng)
+        wide[output] = add_noise(wide[output].to_numpy(), noise, rng, starts)
     wide.columns.name = None
     return wide
 

@@ -13,6 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from bpsflow.errors import BpsflowError
 
@@ -75,6 +76,37 @@ def read_epw(path: Path) -> EpwFile:
                 f"data row {bad + 1} (line {bad + 1 + _HEADER_LINES}): field {column + 1} "
                 f"({name}) is missing or not a number", source=path) from None
     return EpwFile(path=path, header=header, rows=rows, columns=columns)
+
+
+def epw_rows(hour_starts: pd.DatetimeIndex | pd.Series, n_rows: int = 8760) -> np.ndarray:
+    """0-based EPW data row of each hour, mapped by month, day and hour.
+
+    The EPW's own year is ignored (a TMY file mixes years): row ``h`` holds
+    the hour ``h .. h+1`` after 1 January 00:00 of the weather year. In an
+    8760-row file 29 February reads 28 February's rows; in an 8784-row (leap)
+    file a non-leap date after February skips the 29 February rows.
+
+    Parameters
+    ----------
+    hour_starts : DatetimeIndex or Series of datetime64
+        Start of each hour, local standard time (an hour-ending timestamp
+        ``t`` covers ``t - 1 h .. t``: pass ``t - 1 h``).
+    n_rows : int
+        Data rows of the EPW, 8760 or 8784.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    starts = pd.DatetimeIndex(hour_starts)
+    month, day_of_month = starts.month.to_numpy(), starts.day.to_numpy()
+    leap = np.asarray(starts.is_leap_year)
+    day = starts.day_of_year.to_numpy() - 1
+    if n_rows == 8784:
+        day = day + (~leap & (month > 2))
+    else:
+        day = day - (leap & ((month > 2) | ((month == 2) & (day_of_month == 29))))
+    return (day * 24 + starts.hour.to_numpy()).astype(int)
 
 
 def _is_number(text: str) -> bool:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import dataclass, field, replace
-from datetime import date, timedelta
+from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
@@ -441,15 +441,13 @@ def variable_inputs(config: Config, rows: pd.DataFrame, resolution: str, names: 
     DataFrame
         One column per input, aligned with ``rows``.
     """
-    from bpsflow.weather import read_epw
+    from bpsflow.weather import epw_rows, read_epw
 
     epw = read_epw(config.model.weather)
     hours_per_row = 24 if resolution == "daily" else 1
     starts = rows["time"] if resolution == "daily" else rows["time"] - pd.Timedelta(hours=1)
-    # EPW rows of a non-leap weather year: row h holds the hour h..h+1 after 1 January 00:00
-    first_row = np.array([(date(2001, t.month, t.day) - date(2001, 1, 1)).days * 24 + t.hour
-                          for t in starts])
     n_rows = epw.n_hours
+    first_row = epw_rows(starts, n_rows)
 
     def mean_over(column: str, offset: int, length: int) -> np.ndarray:
         values = epw.columns[column]

@@ -68,7 +68,7 @@ from bpsflow.refine.parameters import (INTERVAL, bounded_normal, class_surface,
                                        in_parameter_units, inside_convection_curve, interval,
                                        parameter_nominal, parameters_targeting,
                                        std_in_parameter_units, targets_field)
-from bpsflow.surrogate.idf import read_idf
+from bpsflow.surrogate.idf import model_objects
 
 #: Half-width of a central 90 % normal interval in standard errors.
 _Z90 = float(stats.norm.ppf(0.5 + INTERVAL / 2))
@@ -176,7 +176,7 @@ def refine(config: Config, detailed_path: Path,
         detailed.calibration[io.CALIBRATION_REFERENCE], meta.reference_sensor_std_c)
     notes = [f"sensor {sensor}: {note}" for sensor, note in calibration["note"].items() if note]
     skipped: list[str] = []
-    idf = read_idf(config.model.idf)
+    idf = model_objects(config.model)
     hourly = est.hourly_frame(detailed.frame) if detailed.sub_hourly else detailed.frame
     if detailed.sub_hourly:
         notes.append(f"readings every {detailed.step_minutes:g} min: aggregated to hours "

@@ -11,6 +11,23 @@ height (the east, west and north walls) are lumped into one surface whose
 imposed outside temperature is their area-weighted boundary temperature:
 conduction is linear, so the lumped wall carries the sum of their heat flows.
 Each member reports the lumped wall's inside-face quantities.
+
+Outdoor air flows (``ZoneVentilation:DesignFlowRate`` and
+``ZoneInfiltration:DesignFlowRate``, method Flow/Zone) follow EnergyPlus's
+design-flow-rate model (Engineering Reference, "Infiltration Design Flow
+Rate" and "Ventilation Design Flow Rate"):
+
+    flow = design x schedule x (A + B |T_zone - T_out| + C V + D V^2),  >= 0
+
+with ``V`` the local wind speed at the height of the zone's centroid (the
+Input Output Reference of ZoneInfiltration:DesignFlowRate: "the local outdoor
+wind speed ... is a function of the height of the zone centroid"). An object
+whose flow is constant (schedule always 1, ``B = C = D = 0`` in every
+instance) is summed into ``Cell.ventilation_m3s``; the others are stepped as
+:class:`AirExchange` objects. ``OtherEquipment`` (fuel type None, method
+EquipmentLevel) is an :class:`InternalGain`: its convective part heats the air
+node, its radiant part is absorbed by the inside faces in proportion to area
+x thermal absorptance, as EnergyPlus distributes radiant internal gains.
 """
 
 from __future__ import annotations
@@ -24,6 +41,7 @@ from bpsflow.config import Config
 from bpsflow.errors import BpsflowError
 from bpsflow.surrogate.idf import IdfModel, IdfObject, centroid_height, polygon_area
 from bpsflow.surrogate.params import FieldValues
+from bpsflow.surrogate.schedules import Schedule, read_schedule
 from bpsflow.surrogate.solar import GlazingTables, double_glazing
 
 #: Wind profile exponent and boundary-layer thickness (m) per terrain class
@@ -108,6 +126,43 @@ class Window:
 
 
 @dataclass
+class AirExchange:
+    """An outdoor air flow into the zone whose rate varies (see the module notes).
+
+    Per-instance coefficients, shape ``(n,)``: design flow (m³/s), ``A`` (-),
+    ``B`` (1/K), ``C`` (s/m), ``D`` (s²/m²).
+    """
+
+    object_type: str
+    name: str
+    design_m3s: np.ndarray
+    constant: np.ndarray
+    temperature: np.ndarray
+    velocity: np.ndarray
+    velocity_squared: np.ndarray
+    schedule: Schedule
+    #: Density converting volume to mass flow: ``outdoor`` air, or ``standard``
+    #: (20 °C, 101325 Pa, dry).
+    density_basis: str = "outdoor"
+
+
+@dataclass
+class InternalGain:
+    """A scheduled internal gain (``OtherEquipment``): W = design level x schedule.
+
+    ``design_w`` may be negative (a sink). ``fraction_convective`` (of the
+    design level) heats the air node; ``fraction_radiant`` is absorbed by the
+    inside faces (latent and lost fractions leave the sensible balance).
+    """
+
+    name: str
+    design_w: np.ndarray
+    fraction_radiant: np.ndarray
+    fraction_convective: np.ndarray
+    schedule: Schedule
+
+
+@dataclass
 class Cell:
     n: int
     volume: float
@@ -124,6 +179,15 @@ class Cell:
     ground_reflectance: np.ndarray  # (n, 12)
     zone_name: str = ""            # the IDF zone (key of zone output variables)
     ideal_loads_name: str = ""     # the ZoneHVAC:IdealLoadsAirSystem (key of its variables)
+    air_exchanges: list[AirExchange] = field(default_factory=list)
+    internal_gains: list[InternalGain] = field(default_factory=list)
+    #: Local wind speed at the zone centroid over the weather-file value.
+    zone_wind_factor: float = 1.0
+
+    def schedules(self) -> dict[str, Schedule]:
+        """The schedules the time-varying objects read, by upper-case name."""
+        used = [a.schedule for a in self.air_exchanges] + [g.schedule for g in self.internal_gains]
+        return {s.name.upper(): s for s in used}
 
 
 def _curve(values: FieldValues, name: str) -> Curve:
@@ -346,15 +410,9 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
     window = _window(values, window_obj, window_area, z_floor, height, terrain)
     gradient_obj = idf.of_type("ROOMAIR:TEMPERATUREPATTERN:CONSTANTGRADIENT")
     pattern = gradient_obj[0].name if gradient_obj else None
-    vent = idf.of_type("ZONEVENTILATION:DESIGNFLOWRATE")
-    ventilation = np.zeros(n)
-    for obj in vent:
-        method = obj.get("Design Flow Rate Calculation Method").upper()
-        if method != "FLOW/ZONE":
-            raise BpsflowError(f"ZoneVentilation:DesignFlowRate '{obj.name}': method {method} "
-                               f"not supported by the surrogate (Flow/Zone)", source=idf.path)
-        ventilation = ventilation + values.get(vent[0].type, obj.name, "Design Flow Rate") \
-            * values.get(vent[0].type, obj.name, "Constant Term Coefficient")
+    zone_name = surfaces[0].get("Zone Name")
+    ventilation, exchanges = _air_exchanges(values, zone_name)
+    gains = _internal_gains(values, zone_name)
     ideal = idf.of_type("ZONEHVAC:IDEALLOADSAIRSYSTEM")
     heating_supply, cooling_supply = 50.0, 13.0
     if ideal:
@@ -375,8 +433,100 @@ def build_cell(config: Config, values: FieldValues) -> Cell:
         gradient=values.get(gt, pattern, "Temperature Gradient") if pattern else np.zeros(n),
         return_offset=values.get(gt, pattern, "Return Air Offset") if pattern else np.zeros(n),
         heating_supply_c=heating_supply, cooling_supply_c=cooling_supply,
-        ground_reflectance=ground, zone_name=surfaces[0].get("Zone Name"),
-        ideal_loads_name=ideal[0].name if ideal else "")
+        ground_reflectance=ground, zone_name=zone_name,
+        ideal_loads_name=ideal[0].name if ideal else "",
+        air_exchanges=exchanges, internal_gains=gains,
+        zone_wind_factor=wind_factor(zone_centroid_height(surfaces), terrain, "HEIGHTADJUST"))
+
+
+def zone_centroid_height(surfaces: list[IdfObject]) -> float:
+    """Height (m) of the zone centroid as EnergyPlus computes it.
+
+    The gross-area-weighted mean of the centroids of the zone's walls, roofs
+    and ceilings and floors (EnergyPlus's ``Zone.Centroid``, which sets the
+    local wind speed and outdoor temperature of the zone's air flows).
+    """
+    weighted = total = 0.0
+    for surface in surfaces:
+        if surface.get("Surface Type").upper() in ("WALL", "ROOF", "CEILING", "FLOOR"):
+            vertices = surface.vertices()
+            area = polygon_area(vertices)
+            weighted += centroid_height(vertices) * area
+            total += area
+    return weighted / total
+
+
+def _where(obj: IdfObject) -> str:
+    return f"{obj.where} (in {obj.source})" if obj.source else obj.where
+
+
+def _check_zone(obj: IdfObject, field_name: str, zone_name: str) -> None:
+    zone = obj.get(field_name)
+    if zone.upper() != zone_name.upper():
+        raise BpsflowError(f"{_where(obj)}: field '{field_name}' is '{zone}'; the surrogate "
+                           f"models one zone, '{zone_name}' (no zone lists or spaces)")
+
+
+def _choice(obj: IdfObject, field_name: str, default: str, allowed: tuple[str, ...]) -> str:
+    value = obj.get(field_name).strip() or default
+    if value.upper() not in {a.upper() for a in allowed}:
+        raise BpsflowError(f"{_where(obj)}: field '{field_name}' is '{value}'; the surrogate "
+                           f"supports {' or '.join(allowed)}")
+    return value.upper()
+
+
+#: Standard air density (kg/m³): 20 °C, 101325 Pa, dry (EnergyPlus's StdRhoAir).
+STANDARD_AIR_DENSITY = 101325.0 / (287.042 * 293.15)
+
+
+def _air_exchanges(values: FieldValues, zone_name: str) -> tuple[np.ndarray, list[AirExchange]]:
+    """Constant outdoor air flow (m³/s, ``(n,)``) and the time-varying air exchanges."""
+    idf, n = values.idf, values.n
+    constant_flow = np.zeros(n)
+    exchanges = []
+    for object_type in ("ZONEVENTILATION:DESIGNFLOWRATE", "ZONEINFILTRATION:DESIGNFLOWRATE"):
+        for obj in idf.of_type(object_type):
+            _check_zone(obj, "Zone or ZoneList or Space or SpaceList Name", zone_name)
+            _choice(obj, "Design Flow Rate Calculation Method", "Flow/Zone", ("Flow/Zone",))
+            basis = "OUTDOOR"
+            if object_type == "ZONEINFILTRATION:DESIGNFLOWRATE":
+                basis = _choice(obj, "Density Basis", "Outdoor", ("Outdoor", "Standard"))
+            get = lambda f, d: values.get(object_type, obj.name, f, d)  # noqa: E731
+            design = get("Design Flow Rate", None)
+            a = get("Constant Term Coefficient", 1.0)
+            b = get("Temperature Term Coefficient", 0.0)
+            c = get("Velocity Term Coefficient", 0.0)
+            d = get("Velocity Squared Term Coefficient", 0.0)
+            schedule = read_schedule(idf, obj.get("Schedule Name"), _where(obj))
+            if schedule.is_always_one and basis == "OUTDOOR" and not (b.any() or c.any()
+                                                                      or d.any()):
+                constant_flow = constant_flow + np.maximum(design * a, 0.0)
+                continue
+            exchanges.append(AirExchange(
+                object_type=obj.spelling, name=obj.name, design_m3s=design, constant=a,
+                temperature=b, velocity=c, velocity_squared=d, schedule=schedule,
+                density_basis=basis.lower()))
+    return constant_flow, exchanges
+
+
+def _internal_gains(values: FieldValues, zone_name: str) -> list[InternalGain]:
+    gains = []
+    for obj in values.idf.of_type("OTHEREQUIPMENT"):
+        _check_zone(obj, "Zone or ZoneList or Space or SpaceList Name", zone_name)
+        _choice(obj, "Fuel Type", "None", ("None",))
+        _choice(obj, "Design Level Calculation Method", "EquipmentLevel", ("EquipmentLevel",))
+        get = lambda f, d: values.get("OTHEREQUIPMENT", obj.name, f, d)  # noqa: E731
+        latent, radiant, lost = (get("Fraction Latent", 0.0), get("Fraction Radiant", 0.0),
+                                 get("Fraction Lost", 0.0))
+        if np.any(latent + radiant + lost > 1.0 + 1e-9) or np.any(
+                np.minimum(np.minimum(latent, radiant), lost) < 0):
+            raise BpsflowError(f"{_where(obj)}: fractions latent, radiant and lost must be "
+                               f"in 0..1 and sum to at most 1")
+        gains.append(InternalGain(
+            name=obj.name, design_w=get("Design Level", None), fraction_radiant=radiant,
+            fraction_convective=1.0 - latent - radiant - lost,
+            schedule=read_schedule(values.idf, obj.get("Schedule Name"), _where(obj))))
+    return gains
 
 
 def _window(values: FieldValues, obj: IdfObject, area: float, z_floor: float, height: float,

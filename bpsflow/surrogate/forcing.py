@@ -10,7 +10,7 @@ hourly (``Schedule:File`` without interpolation, ``Until: HH:00``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import date, timedelta
 
 import numpy as np
@@ -21,7 +21,7 @@ from bpsflow.config import BoundaryTarget, Config, Period, Test, WeatherTarget, 
 from bpsflow.errors import BpsflowError
 from bpsflow.instances import day_setpoints
 from bpsflow.surrogate.cell import Cell
-from bpsflow.surrogate.idf import read_idf
+from bpsflow.surrogate.idf import model_objects
 from bpsflow.surrogate.solar import (SHADING_DAYS, beam_floor_fraction, facade_irradiance,
                                      sun_positions)
 from bpsflow.weather import perturb, read_epw
@@ -59,6 +59,9 @@ class PeriodForcing:
     #: ``None``: the sun of the step.
     beam_zenith: np.ndarray | None = None     # (S,) deg
     beam_azimuth: np.ndarray | None = None    # (S,) deg
+    #: Values per step ``(S,)`` of the schedules the cell's air exchanges and
+    #: internal gains read, by upper-case schedule name.
+    schedules: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def steps_per_day(self) -> int:
@@ -194,12 +197,19 @@ def period_forcing(config: Config, cell: Cell, period: Period, samples: pd.DataF
         zenith=zenith, azimuth=azimuth, times_utc=utc,
         month=np.array(local_ends.month - 1), boundary=boundary,
         heating_setpoint=heating, cooling_setpoint=cooling, beam_zenith=beam_zenith,
-        beam_azimuth=beam_azimuth)
+        beam_azimuth=beam_azimuth, schedules=schedule_steps(cell, first, days, tph))
+
+
+def schedule_steps(cell: Cell, first: date, days: int, steps_per_hour: int
+                   ) -> dict[str, np.ndarray]:
+    """Per-step values ``(days * 24 * tph,)`` of every schedule the cell's objects read."""
+    return {name: schedule.steps(first, days, steps_per_hour)
+            for name, schedule in cell.schedules().items()}
 
 
 def shading_days(config: Config) -> int | None:
     """The model's shading-calculation update frequency (days; ``None``: every time step)."""
-    objects = read_idf(config.model.idf).of_type("SHADOWCALCULATION")
+    objects = model_objects(config.model).of_type("SHADOWCALCULATION")
     if not objects:
         return SHADING_DAYS
     shadow = objects[0]
@@ -407,4 +417,5 @@ def constant_forcing(cell: Cell, days: int = 10, steps_per_hour: int = 6, t_out:
         zenith=np.full(steps, 120.0), azimuth=np.full(steps, 0.0),
         times_utc=pd.DatetimeIndex(local).tz_localize("UTC"), month=np.array(local.month - 1),
         boundary=boundary, heating_setpoint=np.full(steps, heating_c),
-        cooling_setpoint=np.full(steps, cooling_c))
+        cooling_setpoint=np.full(steps, cooling_c),
+        schedules=schedule_steps(cell, first, days, steps_per_hour))

@@ -6,6 +6,14 @@ the few object types it uses from a built-in table (field order as in the
 EnergyPlus 25.2 IDD). Objects of other types are kept as raw field lists so
 that a config target on them can still be recognised (and reported as
 ignored when the surrogate has no physics for it).
+
+The model is ``model.idf`` followed by the snippets of ``model.idf_objects``;
+:func:`model_objects` (parsed) and :func:`model_text` (IDF text, what the
+EnergyPlus instances are written from) are the one place that assembles it,
+so every reader of the model sees the same objects. A relative
+``Schedule:File`` name is made absolute against the directory of the file
+that declares it (EnergyPlus runs an instance's copy of the model in another
+directory, where the relative name would not resolve).
 """
 
 from __future__ import annotations
@@ -14,8 +22,12 @@ import re
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bpsflow.errors import BpsflowError
+
+if TYPE_CHECKING:
+    from bpsflow.config import Model
 
 _VERTICES = ("Vertex X", "Vertex Y", "Vertex Z")
 
@@ -86,6 +98,24 @@ FIELDS: dict[str, tuple[str, ...]] = {
     "SURFACECONVECTIONALGORITHM:OUTSIDE:USERCURVE": (
         "Name", "Wind Speed Type for Curve", "Hf Function of Wind Speed Curve Name",
         "Hn Function of Temperature Difference Curve Name"),
+    "ZONEINFILTRATION:DESIGNFLOWRATE": (
+        "Name", "Zone or ZoneList or Space or SpaceList Name", "Schedule Name",
+        "Design Flow Rate Calculation Method", "Design Flow Rate", "Flow Rate per Floor Area",
+        "Flow Rate per Exterior Surface Area", "Air Changes per Hour",
+        "Constant Term Coefficient", "Temperature Term Coefficient",
+        "Velocity Term Coefficient", "Velocity Squared Term Coefficient", "Density Basis"),
+    "OTHEREQUIPMENT": (
+        "Name", "Fuel Type", "Zone or ZoneList or Space or SpaceList Name", "Schedule Name",
+        "Design Level Calculation Method", "Design Level", "Power per Floor Area",
+        "Power per Person", "Fraction Latent", "Fraction Radiant", "Fraction Lost",
+        "Carbon Dioxide Generation Rate", "End-Use Subcategory"),
+    "INTERNALMASS": ("Name", "Construction Name", "Zone or ZoneList Name",
+                     "Space or SpaceList Name", "Surface Area"),
+    "SCHEDULE:CONSTANT": ("Name", "Schedule Type Limits Name", "Hourly Value"),
+    "SCHEDULE:FILE": (
+        "Name", "Schedule Type Limits Name", "File Name", "Column Number",
+        "Rows to Skip at Top", "Number of Hours of Data", "Column Separator",
+        "Interpolate to Timestep", "Minutes per Item", "Adjust Schedule for Daylight Savings"),
     "SURFACEPROPERTY:CONVECTIONCOEFFICIENTS": (
         "Surface Name", "Convection Coefficient 1 Location", "Convection Coefficient 1 Type",
         "Convection Coefficient 1", "Convection Coefficient 1 Schedule Name",
@@ -107,6 +137,13 @@ def normalise(name: str) -> str:
 class IdfObject:
     type: str            # upper case
     fields: list[str]    # raw text values after the type
+    source: Path | None = None   # the file that declares the object
+    spelling: str = ""           # the type as written
+
+    @property
+    def where(self) -> str:
+        """``Type 'Name'`` for messages."""
+        return f"{self.spelling or self.type} '{self.name}'"
 
     @property
     def name(self) -> str:
@@ -181,18 +218,123 @@ def parse_idf_text(text: str, path: Path = Path("<text>")) -> IdfModel:
         parts = [p.strip() for p in chunk.split(",")]
         if not parts or not parts[0]:
             continue
-        objects.append(IdfObject(type=parts[0].upper(), fields=parts[1:]))
+        objects.append(IdfObject(type=parts[0].upper(), fields=parts[1:], source=path,
+                                 spelling=parts[0]))
     return IdfModel(path=path, objects=objects)
 
 
 @lru_cache(maxsize=4)
 def read_idf(path: Path) -> IdfModel:
+    """One IDF file, parsed (the model's base file alone; see :func:`model_objects`)."""
     path = Path(path)
     try:
         text = path.read_text(errors="replace")
     except OSError as exc:
         raise BpsflowError(f"cannot read the IDF: {exc}", source=path) from None
     return parse_idf_text(text, path)
+
+
+#: Object types a snippet may not add (the model has exactly one of each).
+_SINGLETONS = {"VERSION", "BUILDING", "SIMULATIONCONTROL", "TIMESTEP", "GLOBALGEOMETRYRULES",
+               "SITE:LOCATION", "SITE:GROUNDREFLECTANCE", "SHADOWCALCULATION"}
+_SCHEDULE_FILE = "SCHEDULE:FILE"
+_FILE_NAME = 2  # index of "File Name" among a Schedule:File's fields
+
+
+def model_files(model: "Model") -> list[Path]:
+    """The files that make up the model: ``model.idf``, then ``model.idf_objects`` in order."""
+    return [Path(model.idf), *[Path(p) for p in model.idf_objects]]
+
+
+def describe_model(model: "Model") -> str:
+    """The model's files for messages: ``base.idf`` or ``base.idf + a.idf + b.idf``."""
+    files = model_files(model)
+    return str(files[0]) + "".join(f" + {p.name}" for p in files[1:])
+
+
+def model_objects(model: "Model") -> IdfModel:
+    """Every object of the model: ``model.idf``'s, then each snippet's, in order.
+
+    Each object knows the file that declares it (``IdfObject.source``); a
+    relative ``Schedule:File`` name is made absolute against that file's
+    directory. Parsed once per set of files and modification times.
+
+    Raises
+    ------
+    BpsflowError
+        When a snippet file is missing (naming ``model.idf_objects[i]``),
+        declares an object of a type the model has once (``Version``,
+        ``Building``, ...), or declares a schedule, infiltration, equipment or
+        internal mass object whose name the model already uses.
+    """
+    stamps = []
+    for i, path in enumerate(model_files(model)):
+        path = Path(path).resolve()
+        try:
+            stat = path.stat()
+        except OSError:
+            key = "model.idf" if i == 0 else f"model.idf_objects[{i - 1}]"
+            raise BpsflowError(f"{key}: IDF file not found: {path}") from None
+        stamps.append((path, stat.st_mtime_ns, stat.st_size))
+    return _assemble(tuple(stamps))
+
+
+def model_text(model: "Model") -> str:
+    """The whole model as IDF text (what the EnergyPlus instances are written from).
+
+    The objects of :func:`model_objects`, one field per line; comments are
+    not kept.
+    """
+    return render_idf(model_objects(model).objects)
+
+
+def render_idf(objects: list[IdfObject]) -> str:
+    """IDF text of ``objects``."""
+    parts = []
+    for obj in objects:
+        fields = [obj.spelling or obj.type, *obj.fields]
+        parts.append(",\n    ".join(fields) + ";\n")
+    return "\n".join(parts)
+
+
+#: Types whose names must stay unique when a snippet adds objects.
+_UNIQUE_NAMES = ("SCHEDULE:", "ZONEINFILTRATION:", "ZONEVENTILATION:", "OTHEREQUIPMENT",
+                 "INTERNALMASS", "MATERIAL", "CONSTRUCTION")
+
+
+@lru_cache(maxsize=8)
+def _assemble(stamps: tuple[tuple[Path, int, int], ...]) -> IdfModel:
+    objects: list[IdfObject] = []
+    for i, (path, _, _) in enumerate(stamps):
+        part = read_idf.__wrapped__(path) if i == 0 else _read_snippet(path)
+        for obj in part.objects:
+            if obj.type == _SCHEDULE_FILE and len(obj.fields) > _FILE_NAME:
+                name = obj.fields[_FILE_NAME]
+                if name and not Path(name).is_absolute():
+                    obj.fields[_FILE_NAME] = str((path.parent / name).resolve())
+            if i > 0:
+                _check_snippet_object(obj, objects, path)
+            objects.append(obj)
+    return IdfModel(path=stamps[0][0], objects=objects)
+
+
+def _read_snippet(path: Path) -> IdfModel:
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise BpsflowError(f"cannot read the IDF snippet: {exc}", source=path) from None
+    return parse_idf_text(text, path)
+
+
+def _check_snippet_object(obj: IdfObject, before: list[IdfObject], path: Path) -> None:
+    if obj.type in _SINGLETONS:
+        raise BpsflowError(f"a snippet may only add objects; {obj.spelling} is already in "
+                           f"the model (once per model)", source=path)
+    if obj.type.startswith(_UNIQUE_NAMES) and obj.name:
+        for other in before:
+            if other.type == obj.type and other.name.upper() == obj.name.upper():
+                raise BpsflowError(f"{obj.where} is already defined in {other.source}; "
+                                   f"names must be unique", source=path)
 
 
 def polygon_area(vertices: list[tuple[float, float, float]]) -> float:

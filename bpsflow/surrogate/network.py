@@ -28,6 +28,17 @@ reports the ideal-loads power with the air leaving at the return air
 temperature ``T_mean + return offset`` at the flow that delivers the load
 from the supply-air temperature limit; :func:`reported_power` does the same.
 
+Outdoor air enters the air node as a conductance ``rho c_p flow`` to the
+outdoor temperature: the constant flow of the cell, plus each
+:class:`~bpsflow.surrogate.cell.AirExchange` at its flow of the step, whose
+``|T_zone - T_out|`` term takes the zone air temperature at the start of the
+step (EnergyPlus's previous-step mean air temperature), keeping the step
+linear. Internal gains (:class:`~bpsflow.surrogate.cell.InternalGain`) add
+their convective part to the air node and their radiant part to the inside
+faces, in proportion to area x thermal absorptance (EnergyPlus's distribution
+of radiant internal gains, its ``TMULT x ITABSF``), the window's room-side
+pane included.
+
 Detailed quantities of the inside faces (temperature, adjacent air, the
 convection coefficient and the terms of the face heat balance, seed eq. 15)
 are recorded by a :class:`FaceProbe` only when asked for, so the ensemble
@@ -40,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bpsflow.surrogate.cell import Cell
+from bpsflow.surrogate.cell import STANDARD_AIR_DENSITY, Cell
 from bpsflow.surrogate.forcing import SIGMA, PeriodForcing, solar_inputs
 
 KELVIN = 273.15
@@ -179,7 +190,7 @@ def _gap_conductance(t1: np.ndarray, t2: np.ndarray, e1: np.ndarray, e2: np.ndar
 
 #: Inside-face quantities a :class:`FaceProbe` can record (hour means).
 FACE_TERMS = ("temperature", "adjacent_air", "convection_coefficient", "convection",
-              "conduction", "radiation", "solar")
+              "conduction", "radiation", "solar", "internal_gains")
 
 
 @dataclass
@@ -190,7 +201,7 @@ class FaceProbe:
     order, then the window's room-side pane. Heat flows are per unit area and
     count as gains to the face (EnergyPlus's signs), so that at every face
 
-    ``convection + conduction + radiation + solar = 0``     (seed eq. 15)
+    ``convection + conduction + radiation + solar + internal_gains = 0``  (seed eq. 15)
 
     with ``convection = h (T_adjacent - T_face)`` (seed eq. 16), ``h`` the
     face's user curve at ``|T_adjacent - T_face|`` of the start of the step
@@ -199,7 +210,8 @@ class FaceProbe:
     ``conduction`` the heat reaching the face from within the wall (the flow
     from the next node less what the face node's share of the wall stores;
     for the window, the flow from the outer pane, and ``solar`` what the
-    room-side pane absorbs).
+    room-side pane absorbs) and ``internal_gains`` the radiant internal gains
+    the face absorbs (zero without internal gains; seed eq. 15 has none).
 
     Parameters
     ----------
@@ -251,6 +263,9 @@ class FaceProbe:
             return t_face
         if term == "solar":
             return inputs["source"][:, k, node] / area
+        if term == "internal_gains":
+            internal = inputs["internal"]
+            return np.zeros(stepper.net.n) if internal is None else internal[:, k, node] / area
         if term == "radiation":
             return g_pairs[:, 2 * m + 1] / area * (new[:, net.STAR] - t_face)
         if term == "conduction":
@@ -380,7 +395,30 @@ class _Stepper:
         return {"source": source, "boundary": boundary, "t_out": take(f.t_out),
                 "wind": take(f.wind), "t_sky": take(f.t_sky), "pressure": take(f.pressure),
                 "humidity": take(f.humidity), "heat": f.heating_setpoint[steps],
-                "cool": f.cooling_setpoint[steps]}
+                "cool": f.cooling_setpoint[steps], "internal": self._internal_gains(steps),
+                "exchange_schedules": [f.schedules[a.schedule.name.upper()][steps]
+                                       for a in self.cell.air_exchanges]}
+
+    def _internal_gains(self, steps: slice) -> np.ndarray | None:
+        """Internal gains per node over ``steps``, W, ``(n, s, size)`` (``None``: none)."""
+        gains = self.cell.internal_gains
+        if not gains:
+            return None
+        net, n = self.net, self.net.n
+        count = steps.stop - steps.start
+        out = np.zeros((n, count, net.size))
+        faces = net.inside + [net.pane_in]
+        absorbing = np.stack([a * e for a, e in zip(self.opaque_areas, self.emissivity_in)],
+                             axis=1)                                     # (n, faces)
+        share = absorbing / absorbing.sum(axis=1, keepdims=True)
+        for gain in gains:
+            level = gain.design_w[:, None] * self.forcing.schedules[
+                gain.schedule.name.upper()][steps][None, :]              # (n, s) W
+            out[:, :, net.AIR] += gain.fraction_convective[:, None] * level
+            radiant = gain.fraction_radiant[:, None] * level
+            for m, face in enumerate(faces):
+                out[:, :, face] += share[:, m:m + 1] * radiant
+        return out
 
     # Stepping ---------------------------------------------------------
     def run_day(self, state: np.ndarray, inputs: dict, day: int):
@@ -436,6 +474,8 @@ class _Stepper:
         density = air_density(pressure, t_out, humidity)
         cp = air_cp(humidity)
         vent = cell.ventilation_m3s * density * cp
+        if cell.air_exchanges:
+            vent = vent + self._exchange_conductance(inputs, k, t_air, t_out, wind, density, cp)
         g_known.append(vent)
         rhs[:, net.AIR] += vent * t_out
         exterior = [(node, s.area, s.emissivity_out, s.wind_factor, s.outside_wind,
@@ -479,6 +519,8 @@ class _Stepper:
         diagonal[:, net.AIR] += c_air / self.dt * coefficient
         past = history[0] * h1 + history[1] * h2 + history[2] * h3
         rhs[:, net.AIR] += c_air / self.dt * past
+        if inputs["internal"] is not None:
+            rhs += inputs["internal"][:, k]
         if self.dense:
             free, unit = self._solve_dense(diagonal, rhs, g_pairs)
         else:
@@ -495,6 +537,29 @@ class _Stepper:
             self.probe.record(self, state, new, g_pairs, capacity, inputs, self.first_step + k, k)
         self.history = (new[:, net.AIR], h1, h2)
         return new, q
+
+    def _exchange_conductance(self, inputs: dict, k: int, t_air: np.ndarray,
+                              t_out: np.ndarray, wind: np.ndarray, density: np.ndarray,
+                              cp: np.ndarray) -> np.ndarray:
+        """Conductance (W/K, ``(n,)``) of the time-varying outdoor air flows of step ``k``.
+
+        ``flow = design x schedule x (A + B |T_zone - T_out| + C V + D V^2)``,
+        floored at 0 (EnergyPlus sets negative flows to 0), with ``T_zone`` the
+        air temperature at the start of the step and ``V`` the local wind speed
+        at the zone centroid.
+        """
+        cell = self.cell
+        local_wind = wind * cell.zone_wind_factor
+        delta_t = np.abs(t_air - t_out)
+        total = np.zeros(self.net.n)
+        for exchange, schedule in zip(cell.air_exchanges, inputs["exchange_schedules"]):
+            flow = exchange.design_m3s * schedule[k] * (
+                exchange.constant + exchange.temperature * delta_t
+                + exchange.velocity * local_wind
+                + exchange.velocity_squared * local_wind * local_wind)
+            rho = density if exchange.density_basis == "outdoor" else STANDARD_AIR_DENSITY
+            total = total + np.maximum(flow, 0.0) * rho * cp
+        return total
 
     def _solve_dense(self, diagonal, rhs, g_pairs):
         """Free state and unit-power response by a dense solve (reference for tests)."""
@@ -558,7 +623,8 @@ class _Stepper:
     def reset_energy(self, state: np.ndarray) -> None:
         n = self.net.n
         self.energy = {name: np.zeros(n) for name in
-                       ("hvac", "solar", "ventilation", "exterior", "boundary", "stored")}
+                       ("hvac", "solar", "internal", "ventilation", "exterior", "boundary",
+                        "stored")}
         self.start_state = state.copy()
 
     def _account(self, old, new, capacity, stored_air, q, inputs, k, vent, t_out, flows_out):
@@ -567,6 +633,8 @@ class _Stepper:
         e, dt, net = self.energy, self.dt, self.net
         e["hvac"] += q * dt
         e["solar"] += inputs["source"][:, k].sum(axis=1) * dt
+        if inputs["internal"] is not None:
+            e["internal"] += inputs["internal"][:, k].sum(axis=1) * dt
         e["ventilation"] += vent * (t_out - new[:, net.AIR]) * dt
         for node, g_a, g_s in flows_out:
             e["exterior"] += (g_a * (t_out - new[:, node])

@@ -20,8 +20,8 @@ walls the surrogate lumps into one (see :mod:`bpsflow.surrogate.cell`) each
 report the lumped wall's values.
 
 Signs follow EnergyPlus: inside-face heat flows are gains to the face, so
-that convection + conduction + net thermal radiation + solar = 0 at every
-inside face (seed eq. 15).
+that convection + conduction + net thermal radiation + solar (+ radiant
+internal gains, when the model has any) = 0 at every inside face (seed eq. 15).
 """
 
 from __future__ import annotations
@@ -76,6 +76,8 @@ VARIABLES: tuple[Variable, ...] = (
              "inside_face", "radiation", "W/m2"),
     Variable("Surface Inside Face Solar Radiation Heat Gain Rate per Area", "opaque_inside_face",
              "solar", "W/m2"),
+    Variable("Surface Inside Face Internal Gains Radiation Heat Gain Rate per Area",
+             "inside_face", "internal_gains", "W/m2"),
     Variable("Surface Window Transmitted Solar Radiation Rate", "window", "transmitted", "W"),
     Variable("Surface Outside Face Incident Solar Radiation Rate per Area", "outside_face",
              "incident", "W/m2"),

@@ -18,7 +18,7 @@ import pandas as pd
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, WeatherTarget
 from bpsflow.errors import BpsflowError
 from bpsflow.instances import apply_mode
-from bpsflow.surrogate.idf import FIELDS, UNNAMED, IdfModel, normalise
+from bpsflow.surrogate.idf import FIELDS, UNNAMED, IdfModel, describe_model, normalise
 
 Key = tuple[str, str, str]  # (TYPE, NAME upper, normalised field)
 
@@ -91,7 +91,7 @@ def _apply_target(values: FieldValues, config: Config, parameter, target: IdfTar
     object_type = target.object.upper()
     objects = values.idf.of_type(object_type)
     if not objects:
-        raise BpsflowError(f"{where}: no {target.object} object in {config.model.idf}",
+        raise BpsflowError(f"{where}: no {target.object} object in {describe_model(config.model)}",
                            source=config.source)
     if target.name == "*":
         chosen = objects
@@ -100,7 +100,8 @@ def _apply_target(values: FieldValues, config: Config, parameter, target: IdfTar
         if not chosen:
             names = sorted({o.name for o in objects})
             raise BpsflowError(f"{where}: no {target.object} object named '{target.name}' in "
-                               f"{config.model.idf} (objects of that type: {names})",
+                               f"{describe_model(config.model)} (objects of that type: "
+                               f"{names})",
                                source=config.source)
     label = f"{target.object} {target.name}: {target.field}"
     if object_type not in FIELDS or chosen[0].field_index(target.field) is None:

@@ -17,7 +17,7 @@ from bpsflow.config import Config, WeatherTarget, test_dates
 from bpsflow.errors import BpsflowError
 from bpsflow.surrogate.cell import build_cell
 from bpsflow.surrogate.forcing import period_forcing
-from bpsflow.surrogate.idf import read_idf
+from bpsflow.surrogate.idf import model_objects
 from bpsflow.surrogate.network import build_network, simulate
 from bpsflow.surrogate.outputs import (SUPPORTED_OUTPUTS, check_variables, face_probe,
                                        hourly_outputs, resolve_outputs, used_outputs)
@@ -52,7 +52,7 @@ def simulate_instances(config: Config, samples: pd.DataFrame, run_dir: Path | No
     check_variables(config)
     samples = sample_columns(config, samples)
     labels = list(samples.index)
-    values = field_values(config, read_idf(config.model.idf), samples)
+    values = field_values(config, model_objects(config.model), samples)
     cell = build_cell(config, values)
     requests = resolve_outputs(config, cell)
     extra = _Extra(values, _wants_thermostat(config))
@@ -97,7 +97,7 @@ def ignored_targets(config: Config, values=None) -> list[str]:
     """Targets of the config the surrogate has no physics for (labels with parameters)."""
     if values is None:
         samples = sample_columns(config, pd.DataFrame(index=pd.Index([0], name="instance")))
-        values = field_values(config, read_idf(config.model.idf), samples)
+        values = field_values(config, model_objects(config.model), samples)
         build_cell(config, values)
         _Extra(values, _wants_thermostat(config))
     out = values.ignored()

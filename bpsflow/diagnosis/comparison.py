@@ -1,0 +1,144 @@
+"""Is an extended model really better? Held-out loss differences and BIC.
+
+An extension is kept only when it predicts data it was not fitted to better
+than the model without it, by more than chance (:func:`loss_difference_test`,
+Diebold & Mariano, 1995), and its extra parameters pay for themselves
+(:func:`bic`, Schwarz, 1978). Both read errors in time order on the held-out
+hours; hourly errors are autocorrelated, so the variance of the mean loss
+difference is a Newey–West long-run variance.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from bpsflow.diagnosis.structure import _BARTLETT_C1, _BARTLETT_C2, default_hac_lags
+
+LOSSES = ("squared", "absolute")
+#: Relative bias of the long-run variance tolerated by the default lag length.
+#: Tighter than the driver tests' (structure.HAC_BIAS_TOLERANCE): this test
+#: decides alone at its nominal level, so its size matters more than its power.
+LOSS_DIFFERENCE_BIAS_TOLERANCE = 0.025
+
+
+def _loss(errors: np.ndarray, loss: str) -> np.ndarray:
+    if loss == "squared":
+        return errors ** 2
+    if loss == "absolute":
+        return np.abs(errors)
+    raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+
+
+def loss_difference_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
+                         loss: str = "squared", lags: int | None = None,
+                         reference: str = "fixed-b") -> dict:
+    """Diebold–Mariano test that the model after a change predicts better.
+
+    With ``d_t = L(e_before,t) − L(e_after,t)`` the loss differential, the
+    statistic is ``DM = d̄ / sqrt(Ω̂ / n)`` with ``Ω̂`` the Newey–West
+    (Bartlett) long-run variance of ``d`` (Diebold & Mariano, 1995, J. Bus.
+    Econ. Stat. 13: 253–263), times the small-sample factor ``n/(n − 1)``:
+    exactly the t-value of OLS of ``d`` on a constant with statsmodels' HAC
+    covariance (``use_correction=True``). The null is equal accuracy; the
+    p-value is one-sided, small when the model after is better.
+
+    Hourly errors of a building model carry slow, strongly autocorrelated
+    components, and so does ``d``. The default lag length is
+    :func:`bpsflow.diagnosis.structure.default_hac_lags` of ``d`` with the
+    variance's bias held under 2.5 % (84 lags, the cap n/2, for a held-out
+    week with lag-1 autocorrelation 0.8), so wide that the reference
+    distribution is the fixed-b one (Kiefer & Vogelsang, 2005; for this test
+    Coroneo & Iacone, 2020, J. Appl. Econometrics 35: 391–409):
+    ``DM / sqrt(κ) ~ t(K)`` with ``b = (L + 1)/n``, ``κ = exp(b)`` and
+    ``K = ⌈3/(2b)⌉`` for the Bartlett kernel (the q = 1 case of
+    :func:`bpsflow.diagnosis.structure.fixed_b_pvalue`). Measured on AR(1)
+    loss differences with mean 0 (2000 series each), the test rejects at the
+    5 % level in 5.1 % (n = 168 h, φ = 0.8), 6.6 % (n = 168, φ = 0.9),
+    5.5 % (n = 336, φ = 0.8) and 5.9 % (n = 168, φ = 0.5) of them; with the
+    normal reference 12–18 %, with the textbook ``4 (n/100)^(2/9)`` lags and
+    the normal reference 9–24 %. The price is power: a week of errors that
+    autocorrelated holds ~15 independent hours, and only a clear gain passes.
+    ``reference="normal"`` gives the original test's N(0, 1) p-value.
+
+    Parameters
+    ----------
+    errors_before, errors_after : ndarray
+        Prediction errors (measured − predicted, output units) of the two
+        models at the same held-out hours, in time order. Hours where either
+        is missing are dropped.
+    loss : {"squared", "absolute"}
+        Loss of an error.
+    lags : int, optional
+        Newey–West lag length; default :func:`default_hac_lags`.
+    reference : {"fixed-b", "normal"}
+        Reference distribution of the statistic.
+
+    Returns
+    -------
+    dict
+        ``mean_difference`` (mean of ``d``: squared output units for the
+        squared loss; > 0 when the model after is better), ``statistic``
+        (DM), ``p_value`` (one-sided), ``lags``, ``n``, ``loss``,
+        ``reference``.
+    """
+    before = np.asarray(errors_before, dtype=float).ravel()
+    after = np.asarray(errors_after, dtype=float).ravel()
+    if before.shape != after.shape:
+        raise ValueError(f"errors_before and errors_after differ in length "
+                         f"({before.size} and {after.size})")
+    keep = np.isfinite(before) & np.isfinite(after)
+    difference = _loss(before[keep], loss) - _loss(after[keep], loss)
+    n = difference.size
+    if n < 3:
+        raise ValueError(f"the loss-difference test needs at least 3 paired errors, got {n}")
+    centred = difference - difference.mean()
+    lags = default_hac_lags(centred, tolerance=LOSS_DIFFERENCE_BIAS_TOLERANCE) \
+        if lags is None else int(lags)
+    lags = min(lags, n - 1)
+    # Bartlett-weighted autocovariances: statsmodels' weights 1 − j/(L + 1).
+    long_run = centred @ centred / n
+    for lag in range(1, lags + 1):
+        long_run += 2 * (1 - lag / (lags + 1)) * (centred[lag:] @ centred[:-lag]) / n
+    long_run *= n / (n - 1)
+    mean_difference = float(difference.mean())
+    if long_run <= 0:
+        statistic = math.copysign(math.inf, mean_difference) if mean_difference else 0.0
+    else:
+        statistic = mean_difference / math.sqrt(long_run / n)
+    if reference == "fixed-b":
+        b = (lags + 1) / n
+        kappa = math.exp(b * _BARTLETT_C1)
+        dof = max(math.ceil(1.0 / (b * _BARTLETT_C2)), 1)
+        p_value = float(stats.t.sf(statistic / math.sqrt(kappa), dof))
+    elif reference == "normal":
+        p_value = float(stats.norm.sf(statistic))
+    else:
+        raise ValueError(f"reference must be 'fixed-b' or 'normal', got {reference!r}")
+    return {"mean_difference": mean_difference, "statistic": float(statistic),
+            "p_value": p_value, "lags": int(lags), "n": int(n), "loss": loss,
+            "reference": reference}
+
+
+def bic(residuals: np.ndarray, n_parameters: int) -> float:
+    """Bayesian information criterion of a fit with Gaussian errors (Schwarz, 1978).
+
+    ``BIC = n ln(RSS/n) + k ln n`` (up to a constant common to models of the
+    same data): lower is better, each extra parameter costs ``ln n``.
+
+    Parameters
+    ----------
+    residuals : ndarray
+        Residuals of the fit (output units); missing values are dropped.
+    n_parameters : int
+        Parameters fitted, k.
+    """
+    values = np.asarray(residuals, dtype=float).ravel()
+    values = values[np.isfinite(values)]
+    n = values.size
+    if n == 0:
+        raise ValueError("bic needs at least one residual")
+    rss = float(values @ values)
+    return float(n * math.log(rss / n) + n_parameters * math.log(n)) if rss > 0 else -math.inf

@@ -1,0 +1,245 @@
+"""Writing a diagnosis: ``diagnosis.json`` (DESIGN.md §8), ``diagnosis.md``, figures, tables.
+
+Figures (PNG, ``figures/``), after seed §1.1.1.1:
+
+* ``signature_outdoor_temperature.png`` — the calibration signature
+  (measured − predicted, in % of the mean measured value) against outdoor air
+  temperature, hourly points and binned means;
+* ``residual_heatmap.png`` — mean residual per hour of day × day of week;
+* ``residual_vs_<driver>.png`` — residual against the strongest driver;
+* ``residual_acf.png`` — the residuals' autocorrelation with the white-noise band;
+* ``heldout.png`` — measured vs base and final model on the held-out block.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bpsflow.diagnosis.workflow import Diagnosis
+
+JSON_FILE = "diagnosis.json"
+MARKDOWN_FILE = "diagnosis.md"
+RESIDUALS_FILE = "residuals.csv"
+
+
+def diagnosis_record(d: Diagnosis) -> dict:
+    """The ``diagnosis.json`` content: the DESIGN.md §8 keys first, then details."""
+    first = d.rounds[0] if d.rounds else {"drivers": []}
+    return {
+        "verdict": d.verdict,
+        "cause": {k: d.cause.get(k) for k in ("driver", "parameter", "extension", "summary")},
+        "drivers": first["drivers"],
+        "extensions": [{"name": e["name"], "fitted": e["fitted"], "heldout": e["heldout"],
+                        "accepted": bool(e.get("accepted", False)),
+                        **{k: v for k, v in e.items()
+                           if k not in ("name", "fitted", "heldout", "accepted")}}
+                       for e in d.extensions],
+        "gain": d.gain,
+        "output": d.output,
+        "backend": d.backend,
+        "hours": {"calibration": int(d.calibration.sum()), "heldout": int((~d.calibration).sum()),
+                  "first": str(d.timestamps[0]), "last": str(d.timestamps[-1])},
+        "scorecard": {"base": d.scorecard, "final": d.final_scores},
+        "fitted_parameters": {"base": d.base.fit.named, "final": d.final.fit.named},
+        "parameter_check": d.parameter_check,
+        "parameter_fit": d.parameter_fit,
+        "rounds": d.rounds,
+        "seconds": d.seconds,
+    }
+
+
+def write_diagnosis(d: Diagnosis, out_dir: Path) -> dict[str, Path]:
+    """Write JSON, residual table, figures and the markdown report; return their paths."""
+    out_dir = Path(out_dir)
+    figures = out_dir / "figures"
+    figures.mkdir(parents=True, exist_ok=True)
+    record = diagnosis_record(d)
+    paths = {"json": out_dir / JSON_FILE, "markdown": out_dir / MARKDOWN_FILE,
+             "residuals": out_dir / RESIDUALS_FILE}
+    paths["json"].write_text(json.dumps(record, indent=2, default=_jsonable))
+    residuals_table(d).to_csv(paths["residuals"])
+    paths.update(write_figures(d, figures))
+    paths["markdown"].write_text(markdown(d, record, {k: v.relative_to(out_dir)
+                                                      for k, v in paths.items()
+                                                      if v.suffix == ".png"}))
+    return paths
+
+
+def _jsonable(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def residuals_table(d: Diagnosis) -> pd.DataFrame:
+    """Hourly measured, base and final predictions, residuals, the block and the drivers."""
+    frame = pd.DataFrame({"measured": d.measured, "base_prediction": d.base.fit.prediction,
+                          "final_prediction": d.final.fit.prediction,
+                          "base_residual": d.measured - d.base.fit.prediction,
+                          "final_residual": d.measured - d.final.fit.prediction,
+                          "block": np.where(d.calibration, "calibration", "heldout")},
+                         index=d.timestamps)
+    frame.index.name = "timestamp"
+    return frame.join(d.drivers)
+
+
+def write_figures(d: Diagnosis, figures: Path) -> dict[str, Path]:
+    """The diagnostic figures of the base model's calibration residuals (see module notes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from bpsflow.diagnosis.structure import autocorrelation
+
+    cal = d.calibration
+    residual = (d.measured - d.base.fit.prediction)[cal]
+    stamps = d.timestamps[cal]
+    drivers = d.drivers[cal]
+    out: dict[str, Path] = {}
+
+    mean = float(np.mean(d.measured[cal])) or 1.0
+    signature = residual / mean * 100
+    fig, ax = plt.subplots(figsize=(6, 4))
+    outdoor = drivers["outdoor_air_temperature"].to_numpy()
+    ax.scatter(outdoor, signature, s=4, alpha=0.35, color="tab:blue", label="hourly")
+    _binned(ax, outdoor, signature)
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_xlabel("outdoor air temperature (°C)")
+    ax.set_ylabel(f"(measured − predicted) / mean {d.output} (%)")
+    ax.set_title("calibration signature")
+    ax.legend()
+    out["signature"] = _save(fig, figures / "signature_outdoor_temperature.png")
+
+    start = stamps - pd.Timedelta(hours=1)
+    table = (pd.DataFrame({"r": residual, "day": start.dayofweek, "hour": start.hour})
+             .pivot_table(index="day", columns="hour", values="r", aggfunc="mean")
+             .reindex(index=range(7), columns=range(24)))
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    bound = float(np.nanmax(np.abs(table.to_numpy()))) or 1.0
+    image = ax.imshow(table.to_numpy(), aspect="auto", cmap="RdBu_r", vmin=-bound, vmax=bound)
+    ax.set_yticks(range(7), ["Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun"])
+    ax.set_xticks(range(0, 24, 3))
+    ax.set_xlabel("hour of day (start)")
+    fig.colorbar(image, ax=ax, label=f"mean residual ({d.output})")
+    ax.set_title("residual by hour and weekday (calibration hours)")
+    out["heatmap"] = _save(fig, figures / "residual_heatmap.png")
+
+    top = next((r["name"] for r in (d.rounds[0]["drivers"] if d.rounds else [])
+                if r["name"] in drivers.columns), "outdoor_air_temperature")
+    fig, ax = plt.subplots(figsize=(6, 4))
+    values = drivers[top].to_numpy(dtype=float)
+    ax.scatter(values, residual, s=4, alpha=0.35, color="tab:green", label="hourly")
+    _binned(ax, values, residual)
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_xlabel(top)
+    ax.set_ylabel(f"residual ({d.output})")
+    ax.set_title(f"residual vs the strongest driver ({top})")
+    ax.legend()
+    out["top_driver"] = _save(fig, figures / f"residual_vs_{top}.png")
+
+    lags = min(72, len(residual) // 4)
+    acf = autocorrelation(residual, lags)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.vlines(range(len(acf)), 0, acf, color="tab:blue")
+    band = 1.96 / np.sqrt(len(residual))
+    ax.axhspan(-band, band, color="0.85", label="white noise 95 %")
+    ax.set_xlabel("lag (h)")
+    ax.set_ylabel("autocorrelation")
+    ax.set_title("residual autocorrelation")
+    ax.legend()
+    out["acf"] = _save(fig, figures / "residual_acf.png")
+
+    held = ~d.calibration
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.plot(d.timestamps[held], d.measured[held], color="k", lw=1, label="measured")
+    ax.plot(d.timestamps[held], d.base.fit.prediction[held], color="tab:red", lw=1,
+            label="base model (calibrated)")
+    if d.final is not d.base:
+        ax.plot(d.timestamps[held], d.final.fit.prediction[held], color="tab:blue", lw=1,
+                label=f"final model ({d.final.label})")
+    ax.set_ylabel(d.output)
+    ax.set_title("held-out block (never fitted)")
+    ax.legend()
+    fig.autofmt_xdate()
+    out["heldout"] = _save(fig, figures / "heldout.png")
+    return out
+
+
+def _binned(ax, x: np.ndarray, y: np.ndarray, bins: int = 12) -> None:
+    edges = np.quantile(x, np.linspace(0, 1, bins + 1))
+    which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
+    centres = [x[which == b].mean() for b in range(bins) if np.any(which == b)]
+    means = [y[which == b].mean() for b in range(bins) if np.any(which == b)]
+    ax.plot(centres, means, "o-", color="tab:red", label="binned mean")
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
+
+
+def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
+    """The short human report."""
+    base, final = d.scorecard, d.final_scores
+    lines = [f"# Diagnosis of {d.output}", "",
+             f"**Verdict: {d.verdict}.** {d.cause.get('summary', '')}", "",
+             f"Backend {d.backend}; {record['hours']['calibration']} calibration hours, "
+             f"{record['hours']['heldout']} held-out hours ({record['hours']['first']} – "
+             f"{record['hours']['last']}); {d.seconds:.0f} s.", "",
+             "## Scorecard", "",
+             "| model | block | NMBE | CV(RMSE) | nMCRPS | Guideline 14 |",
+             "|---|---|---|---|---|---|"]
+    for label, card in (("base (calibrated)", base), ("final", final)):
+        for block in ("calibration", "heldout"):
+            s = card[block]
+            lines.append(f"| {label} | {block} | {s['nmbe']:+.2%} | {s['cvrmse']:.2%} | "
+                         f"{s['nmcrps']:.2%} | {'pass' if s['guideline14'] else 'fail'} |")
+    lines += ["", "## Drivers of the residuals (round 1)", "",
+              "| driver | share of residual variance | effect | p (Holm) | stable sign | "
+              "significant |", "|---|---|---|---|---|---|"]
+    for r in record["drivers"]:
+        lines.append(f"| {r['name']} | {r['share']:.1%} | {r['effect']:.3g} | "
+                     f"{r['p_adjusted']:.2g} | {'yes' if r['sign_consistent'] else 'no'} | "
+                     f"{'**yes**' if r['significant'] else 'no'} |")
+    if d.rounds:
+        white = d.rounds[0]["whiteness"]
+        lines += ["", f"Ljung–Box (24 lags): p = {white['p_value']:.2g} — residuals "
+                      f"{'look white' if white['white'] else 'are autocorrelated'}."]
+    if d.parameter_check:
+        lines += ["", "## Existing parameters (characteristic signatures)", "",
+                  "| parameter | change that explains most | plausible | share | structure "
+                  "left |", "|---|---|---|---|---|"]
+        for p in d.parameter_check:
+            lines.append(f"| {p['name']} | {p['change']:+.4g} (→ {p['value']:.4g}) | "
+                         f"{'yes' if p['plausible'] else 'no'} | {p['share']:.1%} | "
+                         f"{', '.join(p['structure_left']) or 'none'} |")
+    if d.extensions:
+        lines += ["", "## Candidate extensions", "",
+                  "| round | extension | driver | fitted | held-out CV(RMSE) before → after | "
+                  "nMCRPS before → after | loss-difference p | BIC before → after | accepted |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for e in d.extensions:
+            h = e["heldout"]
+            lines.append(
+                f"| {e['round']} | {e['name']} | {e['driver']} | "
+                f"{', '.join(f'{k} = {v:.4g}' for k, v in e['fitted'].items())} | "
+                f"{h['before']['cvrmse']:.2%} → {h['after']['cvrmse']:.2%} | "
+                f"{h['before']['nmcrps']:.2%} → {h['after']['nmcrps']:.2%} | "
+                f"{e['loss_difference']['p_value']:.2g} | {e['bic']['before']:.0f} → "
+                f"{e['bic']['after']:.0f} | {'**yes**' if e.get('accepted') else 'no'} |")
+    lines += ["", "## Figures", ""]
+    for name, path in figures.items():
+        lines.append(f"![{name}]({path.as_posix()})")
+    return "\n".join(lines) + "\n"

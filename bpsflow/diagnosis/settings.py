@@ -1,0 +1,60 @@
+"""The ``diagnosis:`` section of a config (pydantic only, no heavy imports).
+
+``bpsflow diagnose`` (DESIGN.md §8) reads it; every key has a default, so a
+config without the section diagnoses its first measured output::
+
+    diagnosis:
+      output: heating_power_w     # the measured output whose residuals are analysed
+      holdout_days: 7             # the last days: never fitted, the gain is measured there
+      alpha: 0.01                 # family-wise level of the driver tests (Holm)
+      min_share: 0.05             # a driver must explain this share of residual variance
+      min_amplitude: 0.01         # ... and move the output by this fraction of its mean
+      plausible_change: 0.5       # relative change of a fixed parameter still "plausible"
+      extensions: [infiltration_wind, internal_gain_schedule, solar_aperture, envelope_ua]
+      max_rounds: 3               # extend, re-diagnose, at most this many times
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+ExtensionName = Literal["infiltration_wind", "internal_gain_schedule", "solar_aperture",
+                        "envelope_ua", "thermal_mass", "stratification"]
+
+
+class DiagnosisSettings(BaseModel):
+    """Settings of ``bpsflow diagnose``.
+
+    ``parameters`` are the existing parameters calibrated before the
+    residuals are read (default: the config's non-constant parameters, or
+    ``calibration.parameters`` when that names them). Every *other*
+    parameter is a candidate cause of a ``parameter`` verdict, within
+    ``plausible_change`` (relative) of its nominal value, or within its
+    distribution's 1–99 % range when it is uncertain.
+
+    ``gain_alpha`` is the one-sided level of the held-out loss-difference
+    test an extension must pass (besides a lower BIC and a lower held-out
+    CV(RMSE)) to be accepted.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    output: str | None = None
+    holdout_days: int = Field(default=7, ge=1)
+    parameters: list[str] | None = None
+    alpha: float = Field(default=0.01, gt=0, lt=1)
+    min_share: float = Field(default=0.05, ge=0, lt=1)
+    min_amplitude: float = Field(default=0.01, ge=0)
+    folds: int = Field(default=4, ge=2)
+    plausible_change: float = Field(default=0.5, gt=0)
+    parameter_share: float = Field(default=0.5, gt=0, le=1)
+    gain_alpha: float = Field(default=0.05, gt=0, lt=1)
+    extensions: list[ExtensionName] = Field(
+        default_factory=lambda: ["infiltration_wind", "internal_gain_schedule",
+                                 "solar_aperture", "envelope_ua"])
+    max_rounds: int = Field(default=3, ge=1)
+    max_fit_iterations: int = Field(default=20, ge=1)
+    ensemble_size: int = Field(default=50, ge=2)
+    seed: int = 0

@@ -1,0 +1,497 @@
+"""``bpsflow diagnose``: what the model gets wrong, why, a fix, and the measured gain.
+
+Four steps (DESIGN.md §8; seed §1.1.1.1, §2.1, §4.3.1):
+
+1. **Scorecard.** Fit the existing calibration parameters to the measured
+   output (deterministic, :mod:`bpsflow.diagnosis.fitting`) on all but the
+   last ``holdout_days``; score NMBE, CV(RMSE), nMCRPS and Guideline 14 on
+   the calibration hours and on the held-out block.
+2. **What is wrong.** Residual = measured − fitted prediction on the
+   calibration hours; each driver (weather, time axis, extra measured
+   columns) is tested with a basis that fits it, HAC errors, a Holm
+   correction, an effect size and sign stability across blocked folds
+   (:mod:`bpsflow.diagnosis.structure`); Ljung–Box flags missing dynamics.
+3. **Name the cause.** With significant structure, first ask whether a
+   plausible change of an existing, unfitted parameter removes it
+   (characteristic signatures, :mod:`bpsflow.diagnosis.signatures`): if the
+   structure is gone after that change, the verdict is ``parameter``.
+   Otherwise ``model_form``, and the significant drivers name candidate
+   extensions. No significant driver: ``none`` — no cause is invented.
+4. **Extend and measure.** Each candidate (:mod:`bpsflow.diagnosis.extensions`)
+   is fitted together with the existing parameters on the calibration hours
+   and scored on the held-out block; it is accepted only if the held-out
+   loss difference is significant (Diebold–Mariano with HAC variance), its
+   BIC is lower and its held-out CV(RMSE) is lower. The best accepted one
+   becomes the model, which is diagnosed again, until nothing significant
+   is left or ``max_rounds``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from bpsflow.config import Config, Parameter
+from bpsflow.diagnosis import comparison, structure
+from bpsflow.diagnosis.drivers import derive_drivers
+from bpsflow.diagnosis.extensions import (EXTENSIONS, candidates_for, extend_config, facade_of,
+                                          gain_profile, profile_schedule, year_hours)
+from bpsflow.diagnosis.fitting import (Fit, Problem, fit_many, output_simulator,
+                                       predictive_ensemble, scores)
+from bpsflow.diagnosis.settings import DiagnosisSettings
+from bpsflow.diagnosis.signatures import candidate_parameters, explain, signatures
+from bpsflow.errors import BpsflowError
+
+Announce = Callable[[str], None]
+
+
+@dataclass
+class Model:
+    """A model under diagnosis: its config, fitted parameters and their fit."""
+
+    config: Config
+    fitted: list[Parameter]
+    fit: Fit
+    label: str
+
+
+@dataclass
+class Diagnosis:
+    """Everything ``diagnose`` found; :mod:`bpsflow.diagnosis.report` writes it."""
+
+    output: str
+    timestamps: pd.DatetimeIndex
+    measured: np.ndarray
+    calibration: np.ndarray                  # bool mask of the calibration hours
+    drivers: pd.DataFrame
+    base: Model
+    final: Model
+    scorecard: dict                          # {"calibration": .., "heldout": ..} of the base fit
+    rounds: list[dict] = field(default_factory=list)
+    verdict: str = "none"
+    cause: dict = field(default_factory=dict)
+    extensions: list[dict] = field(default_factory=list)
+    parameter_check: list[dict] = field(default_factory=list)
+    gain: dict = field(default_factory=dict)
+    parameter_fit: dict | None = None
+    final_scores: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    backend: str = "surrogate"
+
+
+def settings_of(config: Config) -> DiagnosisSettings:
+    return getattr(config, "diagnosis", None) or DiagnosisSettings()
+
+
+def choose_output(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings) -> str:
+    """The output to diagnose: ``diagnosis.output``, else the first measured output of the tests."""
+    wanted = [o for t in config.model.tests for o in t.outputs]
+    if settings.output is not None:
+        if settings.output not in wanted:
+            raise BpsflowError(f"diagnosis.output: '{settings.output}' is not an output of the "
+                               f"config's tests (expected one of {sorted(set(wanted))})",
+                               source=config.source)
+        if settings.output not in measured.columns:
+            raise BpsflowError(f"diagnosis.output: the measured data has no column "
+                               f"'{settings.output}'", source=config.source)
+        return settings.output
+    for output in wanted:
+        if output in measured.columns:
+            return output
+    raise BpsflowError(f"the measured data has none of the config's outputs "
+                       f"(expected a column among {sorted(set(wanted))})", source=config.source)
+
+
+def fitted_parameters(config: Config, settings: DiagnosisSettings) -> list[Parameter]:
+    """The existing parameters calibrated before the residuals are read."""
+    from bpsflow.calibration.design import calibration_parameters
+    from bpsflow.calibration.settings import CalibrationSettings
+
+    names = settings.parameters
+    if names is None and config.calibration is not None:
+        names = config.calibration.parameters
+    return calibration_parameters(config, CalibrationSettings(parameters=names))
+
+
+def indoor_temperature(config: Config, measured: pd.DataFrame,
+                       timestamps: pd.DatetimeIndex) -> np.ndarray:
+    """Indoor air temperature (°C) for the wind × ΔT basis: measured if present, else the setpoint."""
+    for column in measured.columns:
+        unit = config.outputs[column].unit if column in config.outputs else ""
+        if unit.strip().upper() in ("C", "°C", "DEGC") and "zone" in column.lower():
+            return measured.loc[timestamps, column].to_numpy(dtype=float)
+    from bpsflow.calibration.design import hourly_setpoints
+
+    heating, _ = hourly_setpoints(config, timestamps)
+    return heating
+
+
+def output_sign(config: Config, output: str) -> float:
+    """The output's response to an added heat gain: −1 for heating power, +1 otherwise."""
+    variable = config.outputs[output].variable.lower() if output in config.outputs else output
+    return -1.0 if "heating" in variable or "heating" in output.lower() else 1.0
+
+
+@dataclass
+class Data:
+    """The measured output prepared for diagnosis (one dataset)."""
+
+    output: str
+    timestamps: pd.DatetimeIndex
+    y: np.ndarray                 # measured output at every hour
+    calibration: np.ndarray       # bool: fitted hours (the rest is the held-out block)
+    drivers: pd.DataFrame
+    indoor: np.ndarray            # °C, for the wind × ΔT basis
+
+
+def prepare(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings) -> Data:
+    """Select the output, split calibration / held-out days, derive the drivers."""
+    output = choose_output(config, measured, settings)
+    series = measured[output].dropna()
+    timestamps = pd.DatetimeIndex(series.index)
+    days = (timestamps - pd.Timedelta(hours=1)).normalize()
+    last_days = np.sort(days.unique())[-settings.holdout_days:]
+    calibration = ~np.isin(days, last_days)
+    if calibration.sum() < 48 or (~calibration).sum() < 24:
+        raise BpsflowError(f"diagnosis.holdout_days: {settings.holdout_days} leaves "
+                           f"{int(calibration.sum())} calibration and {int((~calibration).sum())} "
+                           f"held-out hours of {output}; expected at least 48 and 24",
+                           source=config.source)
+    drivers = derive_drivers(config.model.weather, timestamps, measured.loc[timestamps],
+                             exclude=list(config.outputs))
+    return Data(output, timestamps, series.to_numpy(dtype=float), calibration, drivers,
+                indoor_temperature(config, measured, timestamps))
+
+
+def diagnose(config: Config, measured: pd.DataFrame, out_dir: Path, *,
+             backend: str, jobs: int | None = None, settings: DiagnosisSettings | None = None,
+             announce: Announce = print, step: Callable[[str], None] | None = None) -> Diagnosis:
+    """Run the four steps on ``measured`` (timestamp index, one column per output).
+
+    Parameters
+    ----------
+    backend : {"surrogate", "energyplus"}
+        Where every fit runs (the same model the user runs).
+    step : callable, optional
+        Called with a label after each batch of fits (drives a progress bar).
+    """
+    return diagnose_many(config, [measured], [out_dir], backend=backend, jobs=jobs,
+                         settings=settings, announce=announce, step=step)[0]
+
+
+def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[Path], *,
+                  backend: str, jobs: int | None = None,
+                  settings: DiagnosisSettings | None = None, announce: Announce = print,
+                  step: Callable[[str], None] | None = None) -> list[Diagnosis]:
+    """:func:`diagnose` for several datasets of the same hours, base fits in one batch.
+
+    Repeated datasets (e.g. the false-alarm check over noise seeds) share
+    every simulation batch of the base fit; the rest runs dataset by dataset.
+    """
+    settings = settings or settings_of(config)
+    data = [prepare(config, m, settings) for m in measured]
+    if any(not d.timestamps.equals(data[0].timestamps) for d in data[1:]):
+        raise ValueError("diagnose_many needs datasets of the same hours")
+    context = _Context(config, data[0], settings, backend, jobs, Path(out_dirs[0]),
+                       step or (lambda label: None))
+    fitted = fitted_parameters(config, settings)
+    announce(f"fitting {len(fitted)} existing parameter(s) to {data[0].output} "
+             f"({int(data[0].calibration.sum())} calibration hours, "
+             f"{int((~data[0].calibration).sum())} held out)"
+             + (f", {len(data)} datasets" if len(data) > 1 else ""))
+    started = time.perf_counter()
+    fits = context.fit(config, "base", [Problem(context.sample_of(config), fitted, d.y,
+                                                d.calibration) for d in data])
+    shared = time.perf_counter() - started
+    results = []
+    for d, fit, out_dir in zip(data, fits, out_dirs):
+        started = time.perf_counter()
+        context.data, context.out_dir = d, Path(out_dir)
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        results.append(_diagnose_one(context, Model(config, fitted, fit, "base"), announce))
+        results[-1].seconds = time.perf_counter() - started + shared
+    return results
+
+
+class _Context:
+    """What every step of one diagnosis needs: data, settings, simulators."""
+
+    def __init__(self, config: Config, data: Data, settings: DiagnosisSettings, backend: str,
+                 jobs: int | None, out_dir: Path, step: Callable[[str], None]):
+        self.config, self.data, self.settings = config, data, settings
+        self.backend, self.jobs, self.out_dir, self.step = backend, jobs, out_dir, step
+
+    def simulator(self, config: Config, label: str):
+        return output_simulator(config, self.data.output, self.data.timestamps,
+                                backend=self.backend, work_dir=self.out_dir / "runs" / label,
+                                jobs=self.jobs)
+
+    @staticmethod
+    def sample_of(config: Config, fit: Fit | None = None) -> dict[str, float]:
+        """Every parameter's value: nominal, extensions at zero, fitted values over them."""
+        sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+        for p in config.parameters:
+            if p.provenance and "nested_at" in p.provenance:
+                sample[p.name] = float(p.provenance["nested_at"])
+        if fit is not None:
+            sample.update(fit.named)
+        return sample
+
+    def fit(self, config: Config, label: str, problems: list[Problem]) -> list[Fit]:
+        fits = fit_many(self.simulator(config, label), problems,
+                        max_iterations=self.settings.max_fit_iterations)
+        self.step(label)
+        return fits
+
+    def block_scores(self, fit: Fit) -> dict:
+        d, s = self.data, self.settings
+        ensemble = predictive_ensemble(fit, s.ensemble_size, s.seed)
+        cal = d.calibration
+        return {"calibration": scores(d.y[cal], fit.prediction[cal], ensemble[cal]),
+                "heldout": scores(d.y[~cal], fit.prediction[~cal], ensemble[~cal])}
+
+    def test(self, residual: np.ndarray):
+        d, s = self.data, self.settings
+        cal = d.calibration
+        min_amplitude = s.min_amplitude * abs(float(np.mean(d.y[cal])))
+        return structure.test_drivers(
+            pd.Series(residual, index=d.timestamps[cal]), d.drivers[cal],
+            indoor_temperature_c=d.indoor[cal], alpha=s.alpha, min_share=s.min_share,
+            min_amplitude=min_amplitude, folds=s.folds)
+
+
+def _diagnose_one(context: _Context, base: Model, announce: Announce) -> Diagnosis:
+    d, settings = context.data, context.settings
+    result = Diagnosis(output=d.output, timestamps=d.timestamps, measured=d.y,
+                       calibration=d.calibration, drivers=d.drivers, base=base, final=base,
+                       scorecard=context.block_scores(base.fit), backend=context.backend)
+    current = base
+    tried: set[str] = set()
+    for round_number in range(1, settings.max_rounds + 1):
+        residual = d.y - current.fit.prediction
+        tests = context.test(residual[d.calibration])
+        white = structure.whiteness(residual[d.calibration])
+        significant = [t for t in tests if t.significant]
+        result.rounds.append({"round": round_number, "model": current.label,
+                              "drivers": [_driver_record(t) for t in tests], "whiteness": white,
+                              "significant": [t.name for t in significant]})
+        announce(f"round {round_number}: " + (
+            f"significant driver(s): {', '.join(t.name for t in significant)}" if significant
+            else "no significant structure in the residuals"))
+        if not significant:
+            break
+        if round_number == 1:
+            explained = _parameter_check(context, result, current, residual)
+            if explained is not None:
+                _accept_parameter(context, result, current, explained, significant[0].name,
+                                  announce)
+                break
+            result.verdict = "model_form"
+            result.cause = {"driver": significant[0].name, "parameter": None,
+                            "extension": None, "summary": ""}
+        candidates = [(name, driver) for name, driver in
+                      candidates_for([t.name for t in significant], list(settings.extensions))
+                      if name not in tried]
+        if not candidates:
+            announce("no candidate extension left for these drivers")
+            break
+        tried.update(name for name, _ in candidates)
+        entries = _try_extensions(context, result, current, candidates, residual, round_number,
+                                  announce)
+        passed = [(e, m) for e, m in entries if e["passed"]]
+        result.extensions += [e for e, _ in entries]
+        if not passed:
+            announce("no candidate extension improved the held-out accuracy significantly")
+            break
+        best, model = min(passed, key=lambda pair: pair[0]["heldout"]["after"]["cvrmse"])
+        best["accepted"] = True
+        current = result.final = model
+        if not result.cause.get("extension"):
+            result.cause["extension"], result.cause["driver"] = best["name"], best["driver"]
+        announce(f"accepted {best['name']} ({_fitted_text(best['fitted'])}): held-out "
+                 f"CV(RMSE) {best['heldout']['before']['cvrmse']:.3%} -> "
+                 f"{best['heldout']['after']['cvrmse']:.3%}")
+    for entry in result.extensions:
+        entry.setdefault("accepted", False)
+    _finish(context, result)
+    return result
+
+
+def _driver_record(test) -> dict:
+    return {"name": test.name, "group": test.group, "effect": float(test.amplitude),
+            "share": float(test.share), "direction": int(test.direction),
+            "p_value": float(test.p_value), "p_adjusted": float(test.p_adjusted),
+            "sign_consistent": bool(test.sign_consistent), "significant": bool(test.significant)}
+
+
+def _fitted_text(fitted: dict[str, float]) -> str:
+    return ", ".join(f"{k} = {v:.4g}" for k, v in fitted.items())
+
+
+def _parameter_check(context: _Context, result: Diagnosis, current: Model,
+                     residual: np.ndarray):
+    """The best plausible change of an unfitted parameter, if it removes the structure."""
+    d, settings = context.data, context.settings
+    candidates = candidate_parameters(current.config.parameters,
+                                      [p.name for p in current.fitted], settings.plausible_change)
+    if not candidates:
+        return None
+    found = signatures(context.simulator(current.config, "signatures"),
+                       context.sample_of(current.config, current.fit), candidates,
+                       current.fit.prediction)
+    context.step("signatures")
+    explanations = explain(residual[d.calibration], current.fit.jacobian, found, d.calibration)
+    for e in explanations[:5]:
+        left = context.test(e.corrected)
+        gone = not any(t.significant for t in left)
+        result.parameter_check.append({"name": e.name, "change": e.change, "value": e.value,
+                                       "plausible": e.plausible, "share": e.share,
+                                       "structure_left": [t.name for t in left if t.significant]})
+        if e.plausible and gone and e.share >= settings.min_share:
+            return e
+    return None
+
+
+def _accept_parameter(context: _Context, result: Diagnosis, current: Model, explained,
+                      driver: str, announce: Announce) -> None:
+    """Verdict ``parameter``: refit with the named parameter freed, measure the gain."""
+    from bpsflow.distributions import Uniform
+
+    config = current.config.model_copy(deep=True)
+    config.source = current.config.source
+    candidate = next(c for c in candidate_parameters(config.parameters,
+                                                     [p.name for p in current.fitted],
+                                                     context.settings.plausible_change)
+                     if c.parameter.name == explained.name)
+    freed = candidate.parameter.model_copy(deep=True)
+    freed.distribution = Uniform(type="uniform", lower=candidate.lower, upper=candidate.upper)
+    config.parameters = [freed if p.name == freed.name else p for p in config.parameters]
+    fitted = [*current.fitted, freed]
+    start = {**current.fit.named, freed.name: explained.value}
+    fit = context.fit(config, f"parameter_{freed.name}",
+                      [Problem(context.sample_of(config), fitted, context.data.y,
+                               context.data.calibration, start)])[0]
+    result.verdict = "parameter"
+    result.final = Model(config, fitted, fit, f"parameter {freed.name}")
+    result.cause = {"driver": driver, "parameter": freed.name, "extension": None, "summary": ""}
+    result.parameter_fit = {"name": freed.name, "nominal": candidate.nominal,
+                            "fitted": float(fit.named[freed.name]),
+                            "plausible_range": [candidate.lower, candidate.upper]}
+    announce(f"a plausible change of {freed.name} ({candidate.nominal:.4g} -> "
+             f"{fit.named[freed.name]:.4g}) explains the structure")
+
+
+def _try_extensions(context: _Context, result: Diagnosis, current: Model,
+                    candidates: list[tuple[str, str]], residual: np.ndarray, round_number: int,
+                    announce: Announce) -> list[tuple[dict, Model]]:
+    """Fit each candidate extension with the existing parameters; score it against ``current``.
+
+    All candidates are fitted in one batch on the union of their IDF objects:
+    every extension is nested at zero, so with the other candidates' new
+    parameters at zero the union *is* ``current`` plus that one extension.
+    """
+    d, config = context.data, current.config
+    union = config
+    per_candidate = []
+    for name, driver in candidates:
+        extension = EXTENSIONS[name]
+        schedule, detail = None, {}
+        if name == "internal_gain_schedule":
+            profile = gain_profile(pd.Series(residual[d.calibration],
+                                             index=d.timestamps[d.calibration]),
+                                   output_sign(config, d.output))
+            schedule = profile_schedule(profile, config.model.year)
+            detail["profile"] = {f"{'weekend' if w else 'weekday'}_{h:02d}": float(v)
+                                 for (w, h), v in profile["profile"].items() if v}
+        elif name == "solar_aperture":
+            facade = facade_of(driver)
+            schedule = derive_drivers(config.model.weather,
+                                      year_hours(config.model.year))[f"incident_solar_{facade}"]
+            detail["facade"] = facade
+        directory = context.out_dir / "extensions" / f"round{round_number}_{name}"
+        extended = extend_config(config, extension, directory, schedule)
+        union = extend_config(union, extension, directory, schedule)
+        new = [p for p in extended.parameters
+               if p.name in {q.name for q in extension.parameters}]
+        per_candidate.append((name, driver, extended, new, detail))
+    announce(f"fitting {len(candidates)} candidate extension(s): "
+             + ", ".join(f"{n} ({drv})" for n, drv, *_ in per_candidate))
+    union_sample = context.sample_of(union, current.fit)
+    problems = [Problem(union_sample, [*current.fitted, *new], d.y, d.calibration,
+                        {**current.fit.named, **{p.name: 0.0 for p in new}})
+                for _, _, _, new, _ in per_candidate]
+    fits = context.fit(union, f"round{round_number}", problems)
+    before = context.block_scores(current.fit)
+    held, cal = ~d.calibration, d.calibration
+    out = []
+    for (name, driver, extended, new, detail), fit in zip(per_candidate, fits):
+        fitted = [*current.fitted, *new]
+        after = context.block_scores(fit)
+        test = comparison.loss_difference_test(d.y[held] - current.fit.prediction[held],
+                                               d.y[held] - fit.prediction[held])
+        bic_before = comparison.bic(d.y[cal] - current.fit.prediction[cal], len(current.fitted))
+        bic_after = comparison.bic(d.y[cal] - fit.prediction[cal], len(fitted))
+        passed = bool(test["p_value"] < context.settings.gain_alpha and bic_after < bic_before
+                      and after["heldout"]["cvrmse"] < before["heldout"]["cvrmse"])
+        names = [p.name for p in fitted]
+        entry = {"name": name, "driver": driver, "round": round_number,
+                 "fitted": {p.name: float(fit.named[p.name]) for p in new},
+                 "fitted_std": {p.name: float(np.sqrt(fit.covariance[names.index(p.name)] \
+                                                      [names.index(p.name)])) for p in new},
+                 "heldout": {"before": _short(before["heldout"]),
+                             "after": _short(after["heldout"])},
+                 "calibration": {"before": _short(before["calibration"]),
+                                 "after": _short(after["calibration"])},
+                 "loss_difference": test, "bic": {"before": bic_before, "after": bic_after},
+                 "passed": passed, "iterations": fit.iterations,
+                 "files": str(extended.model.idf_objects[-1].parent), **detail}
+        announce(f"  {name}: {_fitted_text(entry['fitted'])}; held-out CV(RMSE) "
+                 f"{before['heldout']['cvrmse']:.3%} -> {after['heldout']['cvrmse']:.3%}, "
+                 f"loss-difference p = {test['p_value']:.3g}, BIC {bic_before:.1f} -> "
+                 f"{bic_after:.1f}: {'passes' if passed else 'rejected'}")
+        out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{name}")))
+    return out
+
+
+def _short(block: dict) -> dict:
+    return {"cvrmse": block["cvrmse"], "nmbe": block["nmbe"], "nmcrps": block["nmcrps"],
+            "guideline14": block["guideline14"]}
+
+
+def _finish(context: _Context, result: Diagnosis) -> None:
+    """Verdict summary sentence and the overall held-out gain."""
+    before = result.scorecard["heldout"]
+    result.final_scores = context.block_scores(result.final.fit) \
+        if result.final is not result.base else result.scorecard
+    after = result.final_scores["heldout"]
+    result.gain = {"metric": "cvrmse", "before": before["cvrmse"], "after": after["cvrmse"],
+                   "nmcrps_before": before["nmcrps"], "nmcrps_after": after["nmcrps"]}
+    cause = {"driver": None, "parameter": None, "extension": None, **(result.cause or {})}
+    result.cause = cause
+    if result.verdict == "none":
+        first = result.rounds[0] if result.rounds else {}
+        white = first.get("whiteness", {}).get("white", True)
+        cause["summary"] = ("No driver explains a share of the residuals that matters; "
+                            "the model is kept as it is"
+                            + ("." if white else " (the residuals are autocorrelated, which "
+                               "alone names no cause)."))
+    elif result.verdict == "parameter":
+        fit = result.parameter_fit
+        cause["summary"] = (f"The residual structure ({cause['driver']}) is explained by "
+                            f"{fit['name']} = {fit['fitted']:.4g} instead of {fit['nominal']:.4g}; "
+                            f"held-out CV(RMSE) {before['cvrmse']:.2%} -> {after['cvrmse']:.2%}.")
+    elif cause.get("extension"):
+        accepted = [e for e in result.extensions if e.get("accepted")]
+        cause["summary"] = (f"The residuals follow {cause['driver']}, which the model lacks: "
+                            + ", ".join(f"{e['name']} ({_fitted_text(e['fitted'])})"
+                                        for e in accepted)
+                            + f" improves held-out CV(RMSE) {before['cvrmse']:.2%} -> "
+                            f"{after['cvrmse']:.2%}.")
+    else:
+        cause["summary"] = (f"The residuals follow {cause['driver']}, but no candidate extension "
+                            f"improved the held-out accuracy significantly.")
