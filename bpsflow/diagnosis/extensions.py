@@ -12,8 +12,9 @@ extension                IDF objects                                new paramete
 =======================  =========================================  ============================
 infiltration_wind        ZoneInfiltration:DesignFlowRate, flow =    infiltration_wind_m3s_per_ms
                          design × wind speed (C = 1)                (m³/s per m/s)
-internal_gain_schedule   OtherEquipment, Schedule:File profile      scheduled_gain_w (W at the
-                         (hour of day × weekday/weekend, estimated  profile's peak)
+internal_gain_schedule   OtherEquipment, Schedule:File on/off       scheduled_gain_w (W while
+                         block (day type × hours, the block that    on)
+                         best explains the residuals)
                          from the calibration residuals)
 solar_aperture           OtherEquipment, Schedule:File of the       solar_aperture_m2 (m²: W of
                          facade's incident irradiance (pvlib)       gain per W/m² incident)
@@ -27,7 +28,6 @@ Which extension answers which driver (DESIGN.md §8 names) is
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -67,6 +67,7 @@ class Extension:
     snippet: str                          # file in bpsflow/extensions_idf
     parameters: tuple[NewParameter, ...]
     schedule_file: str | None = None      # CSV the snippet's Schedule:File reads
+    schedule_name: str | None = None      # that Schedule:File object's name
     drivers: tuple[str, ...] = field(default_factory=tuple)
 
 
@@ -86,8 +87,8 @@ EXTENSIONS: dict[str, Extension] = {
         snippet="internal_gain_schedule.idf",
         parameters=(NewParameter(
             "scheduled_gain_w", "OtherEquipment", "DiagnosisScheduledGain", "Design Level",
-            -3000.0, 3000.0, "W", "gain at the profile's peak"),),
-        schedule_file="internal_gain_profile.csv",
+            -3000.0, 3000.0, "W", "gain while the block schedule is on"),),
+        schedule_file="internal_gain_profile.csv", schedule_name="DiagnosisGainProfile",
         drivers=("hour_of_day", "weekend")),
     "solar_aperture": Extension(
         name="solar_aperture",
@@ -96,7 +97,7 @@ EXTENSIONS: dict[str, Extension] = {
         parameters=(NewParameter(
             "solar_aperture_m2", "OtherEquipment", "DiagnosisSolarAperture", "Design Level",
             -5.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),),
-        schedule_file="facade_irradiance.csv",
+        schedule_file="facade_irradiance.csv", schedule_name="DiagnosisFacadeIrradiance",
         drivers=("incident_solar_south", "incident_solar_east", "incident_solar_west",
                  "incident_solar_north", "incident_solar_roof", "global_horizontal_radiation",
                  "direct_normal_radiation", "diffuse_horizontal_radiation")),
@@ -146,19 +147,21 @@ def snippet_path(extension: Extension) -> Path:
     return Path(str(resources.files(SNIPPET_PACKAGE).joinpath(extension.snippet)))
 
 
-def new_parameters(extension: Extension) -> list[Parameter]:
+def new_parameters(extension: Extension, variant: int | None = None) -> list[Parameter]:
     """The extension's parameters as config parameters (uniform over the search range)."""
-    return [Parameter(name=p.name, group="extension", mode="absolute",
+    tag = "" if variant is None else f"_v{variant}"
+    return [Parameter(name=p.name + tag, group="extension", mode="absolute",
                       description=f"{p.description} ({p.unit}); added by bpsflow diagnose",
                       distribution=Uniform(type="uniform", lower=p.lower, upper=p.upper),
-                      targets=[IdfTarget(object=p.object, name=p.object_name, field=p.field)],
+                      targets=[IdfTarget(object=p.object, name=p.object_name + tag,
+                                         field=p.field)],
                       provenance={"method": "bpsflow diagnose", "extension": extension.name,
-                                  "nested_at": 0.0})
+                                  "nested_at": 0.0, "reports_as": p.name})
             for p in extension.parameters]
 
 
 def extend_config(config: Config, extension: Extension, directory: Path,
-                  schedule: pd.Series | None = None) -> Config:
+                  schedule: pd.Series | None = None, variant: int | None = None) -> Config:
     """A copy of ``config`` whose model includes ``extension`` (files in ``directory``).
 
     Parameters
@@ -167,21 +170,38 @@ def extend_config(config: Config, extension: Extension, directory: Path,
         Hourly values for the extension's ``Schedule:File`` (8760 rows of the
         config's year, hour-ending order as EnergyPlus reads them); required
         when the extension has one.
+    variant : int, optional
+        Suffix ``_v<variant>`` on the snippet's object, schedule, file and
+        parameter names, so that several variants of one extension (e.g.
+        gain schedules) can sit in one model and be fitted in one batch.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    snippet = directory / extension.snippet
-    shutil.copyfile(snippet_path(extension), snippet)
-    if extension.schedule_file is not None:
+    tag = "" if variant is None else f"_v{variant}"
+    text = snippet_path(extension).read_text()
+    renames = [(p.object_name, p.object_name + tag) for p in extension.parameters]
+    if extension.schedule_name:
+        renames.append((extension.schedule_name, extension.schedule_name + tag))
+    schedule_file = extension.schedule_file
+    if schedule_file and tag:
+        stem, suffix = schedule_file.rsplit(".", 1)
+        renames.append((schedule_file, f"{stem}{tag}.{suffix}"))
+        schedule_file = f"{stem}{tag}.{suffix}"
+    for old, new in renames:
+        text = text.replace(old, new)
+    snippet = directory / extension.snippet.replace(".idf", f"{tag}.idf")
+    snippet.write_text(text)
+    if schedule_file is not None:
         if schedule is None:
             raise ValueError(f"extension {extension.name} needs its schedule values")
-        write_schedule(np.asarray(schedule, dtype=float), directory / extension.schedule_file)
+        write_schedule(np.asarray(schedule, dtype=float), directory / schedule_file)
     extended = config.model_copy(deep=True)
     extended.source = config.source
     extended.model.idf_objects = [*config.model.idf_objects, snippet]
     names = {p.name for p in extended.parameters}
     extended.parameters = [*extended.parameters,
-                           *[p for p in new_parameters(extension) if p.name not in names]]
+                           *[p for p in new_parameters(extension, variant)
+                             if p.name not in names]]
     return extended
 
 
@@ -196,26 +216,73 @@ def year_hours(year: int) -> pd.DatetimeIndex:
     return pd.date_range(pd.Timestamp(year=year, month=1, day=1, hour=1), periods=8760, freq="h")
 
 
-def gain_profile(residual: pd.Series, output_sign: float, keep: float = 0.3) -> pd.DataFrame:
-    """Hour-of-day × weekday/weekend profile of an unmodelled gain, from residuals.
+#: Day types a gain block may cover: name -> (weekdays on, weekend days on).
+DAY_TYPES = {"weekdays": (1, 0), "weekends": (0, 1), "all days": (1, 1)}
 
-    The mean residual of each (day type, hour) cell, oriented so that a
-    positive gain explains it (``output_sign``: the output's response to a
-    gain, −1 for heating power, +1 for a free-floating temperature),
-    normalised to 1 at its peak; cells under ``keep`` × the peak are set to
-    0 (noise). Index: ``weekend`` (0/1) × ``hour`` (0–23, hour start).
+
+def gain_blocks(residual: pd.Series, output_sign: float,
+                fitted_jacobian: np.ndarray | None = None, count: int = 4,
+                overlap: float = 0.8) -> list[tuple[pd.DataFrame, dict]]:
+    """On/off blocks (day type × hours) of an unmodelled gain that best explain the residuals.
+
+    Every block ``[start, end)`` hours of every day type in :data:`DAY_TYPES`
+    is tried as a regressor of the residual, together with a constant and
+    ``fitted_jacobian`` (the fitted parameters' responses at the residual's
+    hours, ``(n, k)``): the calibration that produced the residual has bent
+    those parameters towards the missing gain (e.g. more solar gain for a
+    midday bump) and the joint regression partly undoes that. That screen
+    is linear and the calibration's moves are not, so it is only a
+    shortlist: the ``count`` blocks with the smallest residual sum of
+    squares, skipping blocks that share more than ``overlap`` of their hours
+    (Jaccard) with a block already listed; the joint nonlinear refit of
+    each decides. A block's profile is 1 in the block and 0 elsewhere, so
+    the fitted design level is the gain while it is on (W).
+
+    Returns
+    -------
+    list of (profile, block)
+        ``profile``: column ``profile`` indexed by ``weekend`` (0/1) × ``hour``
+        (0–23, hour start); ``block``: ``day_type``, ``start_hour``,
+        ``end_hour`` and the screen's ``level`` (W, oriented by
+        ``output_sign``, the output's response to a gain: −1 for heating).
     """
     start = residual.index - pd.Timedelta(hours=1)
-    frame = pd.DataFrame({"r": residual.to_numpy() * output_sign,
-                          "weekend": (start.dayofweek >= 5).astype(int), "hour": start.hour})
-    cells = frame.groupby(["weekend", "hour"])["r"].mean()
+    weekend = np.asarray(start.day_of_week >= 5)
+    hour = np.asarray(start.hour)
+    y = residual.to_numpy(dtype=float)
+    base = np.ones((len(y), 1))
+    if fitted_jacobian is not None and fitted_jacobian.size:
+        base = np.column_stack([base, fitted_jacobian])
+    ranked = []
+    for day_type, (on_weekday, on_weekend) in DAY_TYPES.items():
+        day_on = np.where(weekend, on_weekend, on_weekday).astype(bool)
+        for first in range(24):
+            for last in range(first + 1, 25):
+                block = day_on & (hour >= first) & (hour < last)
+                if block.sum() < 2 or block.all():
+                    continue
+                design = np.column_stack([block.astype(float), base])
+                coefficients = np.linalg.lstsq(design, y, rcond=None)[0]
+                rss = float(np.sum((y - design @ coefficients) ** 2))
+                ranked.append((rss, day_type, first, last, block,
+                               float(coefficients[0]) * output_sign))
+    ranked.sort(key=lambda item: item[0])
+    chosen: list = []
+    for item in ranked:
+        if all((item[4] & c[4]).sum() / (item[4] | c[4]).sum() < overlap for c in chosen):
+            chosen.append(item)
+        if len(chosen) >= count:
+            break
     full = pd.MultiIndex.from_product([[0, 1], range(24)], names=["weekend", "hour"])
-    cells = cells.reindex(full).fillna(0.0)
-    peak = float(cells.max())
-    if peak <= 0:
-        return (cells * 0.0).rename("profile").to_frame()
-    profile = np.where(cells >= keep * peak, cells / peak, 0.0)
-    return pd.DataFrame({"profile": profile}, index=full)
+    out = []
+    for _, day_type, first, last, _, level in chosen:
+        on_weekday, on_weekend = DAY_TYPES[day_type]
+        profile = [float(bool(on_weekend if w else on_weekday) and first <= h < last)
+                   for w, h in full]
+        out.append((pd.DataFrame({"profile": profile}, index=full),
+                    {"day_type": day_type, "start_hour": first, "end_hour": last,
+                     "level": level}))
+    return out
 
 
 def profile_schedule(profile: pd.DataFrame, year: int) -> pd.Series:

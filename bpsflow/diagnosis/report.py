@@ -219,12 +219,14 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
                       f"{'look white' if white['white'] else 'are autocorrelated'}."]
     if d.parameter_check:
         lines += ["", "## Existing parameters (characteristic signatures)", "",
-                  "| parameter | change that explains most | plausible | share | structure "
-                  "left |", "|---|---|---|---|---|"]
+                  "| parameter | change that explains most (linear) | plausible | share | "
+                  "refitted | structure left after refit |", "|---|---|---|---|---|---|"]
         for p in d.parameter_check:
+            refit = f"{p['refitted']:.4g}" if "refitted" in p else "-"
+            left = ", ".join(p["structure_left"]) or "none" if "structure_left" in p else "-"
             lines.append(f"| {p['name']} | {p['change']:+.4g} (→ {p['value']:.4g}) | "
-                         f"{'yes' if p['plausible'] else 'no'} | {p['share']:.1%} | "
-                         f"{', '.join(p['structure_left']) or 'none'} |")
+                         f"{'yes' if p['plausible'] else 'no'} | {p['share']:.1%} | {refit} | "
+                         f"{left} |")
     if d.extensions:
         lines += ["", "## Candidate extensions", "",
                   "| round | extension | driver | fitted | held-out CV(RMSE) before → after | "

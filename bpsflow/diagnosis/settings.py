@@ -34,6 +34,13 @@ class DiagnosisSettings(BaseModel):
     ``plausible_change`` (relative) of its nominal value, or within its
     distribution's 1–99 % range when it is uncertain.
 
+    ``parameter_candidates``: how many existing parameters, those whose
+    characteristic signatures explain most of the residual, are refitted to
+    see whether one of them removes the structure.
+
+    ``gain_blocks``: how many on/off schedules of an internal gain are
+    refitted (the shortlist of :func:`bpsflow.diagnosis.extensions.gain_blocks`).
+
     ``gain_alpha`` is the one-sided level of the held-out loss-difference
     test an extension must pass (besides a lower BIC and a lower held-out
     CV(RMSE)) to be accepted.
@@ -55,6 +62,8 @@ class DiagnosisSettings(BaseModel):
         default_factory=lambda: ["infiltration_wind", "internal_gain_schedule",
                                  "solar_aperture", "envelope_ua"])
     max_rounds: int = Field(default=3, ge=1)
+    gain_blocks: int = Field(default=4, ge=1)
+    parameter_candidates: int = Field(default=3, ge=1)
     max_fit_iterations: int = Field(default=20, ge=1)
     ensemble_size: int = Field(default=50, ge=2)
     seed: int = 0

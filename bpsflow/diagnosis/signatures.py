@@ -105,14 +105,21 @@ def signatures(simulate: Simulator, sample: dict[str, float], candidates: list[C
 
 
 def explain(residual: np.ndarray, fitted_jacobian: np.ndarray,
-            found: list[Signature], calibration: np.ndarray) -> list[Explanation]:
+            found: list[Signature], calibration: np.ndarray,
+            movable: np.ndarray | None = None) -> list[Explanation]:
     """Project the calibration-hour residual on each signature, net of the fitted span.
 
+    ``movable`` (bool per fitted parameter) leaves out of the span the
+    fitted parameters stuck at a bound of their range: they could not absorb
+    more, so what lies along their direction is still to be explained.
     Returns the explanations sorted by explained share (largest first).
     """
     calibration = np.asarray(calibration, dtype=bool)
     r = np.asarray(residual, dtype=float)
-    span = np.column_stack([np.ones(int(calibration.sum())), fitted_jacobian[calibration]])
+    columns = fitted_jacobian[calibration]
+    if movable is not None:
+        columns = columns[:, np.asarray(movable, dtype=bool)]
+    span = np.column_stack([np.ones(int(calibration.sum())), columns])
     projector = span @ np.linalg.pinv(span)
     r_free = r - projector @ r
     total = float(np.sum((r - r.mean()) ** 2))

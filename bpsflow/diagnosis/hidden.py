@@ -1,0 +1,142 @@
+"""Synthetic "measurements" with a hidden effect, to check that ``diagnose`` finds it.
+
+A truth model is the user's config plus IDF objects the config lacks (a
+hidden effect) and, optionally, other parameter values; ``bpsflow synth``
+runs it and writes noisy measurements. ``diagnose`` is then given only the
+original config and the measurement file: the effect is never named to it.
+
+The effects here are written as plain EnergyPlus objects, independently of
+the candidate extensions' snippets (e.g. the internal gain is a weekday
+``Schedule:Compact``, which the candidate only approximates by a profile
+estimated from the residuals).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bpsflow.config import Config, load_config
+
+#: IDF text of each hidden effect; ``{value}`` is the effect's size.
+EFFECTS: dict[str, str] = {
+    "wind_infiltration": """
+ZoneInfiltration:DesignFlowRate,
+    HiddenWindInfiltration, Cell, AlwaysOn, Flow/Zone,
+    {value},                 !- Design Flow Rate {{m3/s}} per m/s of wind
+    , , ,
+    0, 0, 1, 0;              !- A, B, C (wind), D
+""",
+    "constant_infiltration": """
+ZoneInfiltration:DesignFlowRate,
+    HiddenLeak, Cell, AlwaysOn, Flow/Zone,
+    {value},                 !- Design Flow Rate {{m3/s}}
+    , , ,
+    1, 0, 0, 0;
+""",
+    "office_gain": """
+OtherEquipment,
+    HiddenOfficeGain, None, Cell, HiddenOfficeHours, EquipmentLevel,
+    {value},                 !- Design Level {{W}}
+    , , 0, 0, 0;
+Schedule:Compact,
+    HiddenOfficeHours, ,
+    Through: 12/31,
+    For: Weekdays, Until: 09:00, 0, Until: 17:00, 1, Until: 24:00, 0,
+    For: AllOtherDays, Until: 24:00, 0;
+""",
+    "east_aperture": """
+OtherEquipment,
+    HiddenEastAperture, None, Cell, HiddenEastIrradiance, EquipmentLevel,
+    {value},                 !- Design Level {{W}} per W/m2 (an aperture in m2)
+    , , 0, 0, 0;
+Schedule:File,
+    HiddenEastIrradiance, , hidden_east_irradiance.csv, 1, 0, 8760, Comma, No, 60, No;
+""",
+}
+
+#: The driver and extension a correct diagnosis names for each effect.
+EXPECTED: dict[str, tuple[str, str]] = {
+    "wind_infiltration": ("wind_speed", "infiltration_wind"),
+    "constant_infiltration": ("outdoor_air_temperature", "envelope_ua"),
+    "office_gain": ("hour_of_day", "internal_gain_schedule"),
+    "east_aperture": ("incident_solar_east", "solar_aperture"),
+}
+
+
+@dataclass
+class HiddenCase:
+    """A truth model and the measurements it produced."""
+
+    effect: str | None
+    value: float
+    measured: Path
+    truth_config: Path
+    parameter_values: dict[str, float] = field(default_factory=dict)
+
+
+def write_truth(base_config: Path, directory: Path, effect: str | None, value: float,
+                parameter_values: dict[str, float], *, seed: int, noise_bound: float = 0.03,
+                autocorrelation: float = 0.8, output: str = "heating_power_w") -> tuple[Path, Path]:
+    """Write the truth config (base + hidden effect) and the synth truth file.
+
+    ``noise_bound`` is 3 standard deviations of the relative sensor noise of
+    ``output``, AR(1) with lag-1 ``autocorrelation``.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    raw: dict = {"extends": str(Path(base_config).resolve()),
+                 "execution": {"run_dir": str(directory / "run")}}
+    if effect is not None:
+        snippet = directory / "hidden_effect.idf"
+        snippet.write_text(f"! hidden effect {effect}\n" + EFFECTS[effect].format(value=value))
+        raw["model"] = {"idf_objects": [snippet.name]}
+        if effect == "east_aperture":
+            _write_east_irradiance(load_config(base_config), directory)
+    config_path = directory / "truth_config.yaml"
+    config_path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    truth_path = directory / "truth_values.yaml"
+    truth_path.write_text(yaml.safe_dump({
+        "seed": int(seed), "values": {k: float(v) for k, v in parameter_values.items()},
+        "noise": {output: {"kind": "relative", "bound": float(noise_bound),
+                           "autocorrelation": float(autocorrelation)}}}, sort_keys=False))
+    return config_path, truth_path
+
+
+def _write_east_irradiance(config: Config, directory: Path) -> None:
+    from bpsflow.diagnosis.drivers import derive_drivers
+    from bpsflow.diagnosis.extensions import write_schedule, year_hours
+
+    east = derive_drivers(config.model.weather, year_hours(config.model.year))
+    write_schedule(east["incident_solar_east"].to_numpy(), directory / "hidden_east_irradiance.csv")
+
+
+def make_case(base_config: Path, directory: Path, effect: str | None, value: float = 0.0,
+              parameter_values: dict[str, float] | None = None, *, seed: int = 0,
+              backend: str = "surrogate", noise_bound: float = 0.03,
+              autocorrelation: float = 0.8) -> HiddenCase:
+    """Write the truth model and synthesise its measurements (``directory/run/truth``)."""
+    from bpsflow.synth import load_truth, synthesize
+
+    parameter_values = dict(parameter_values or {})
+    config_path, truth_path = write_truth(base_config, directory, effect, value,
+                                          parameter_values, seed=seed, noise_bound=noise_bound,
+                                          autocorrelation=autocorrelation)
+    config = load_config(config_path)
+    truth = load_truth(truth_path, config)
+    out = Path(directory) / "run" / "truth"
+    synthesize(config, truth, out, backend=backend)
+    return HiddenCase(effect, value, out / "measured.csv", config_path, parameter_values)
+
+
+def null_measurements(measured: "np.ndarray", seeds: list[int], bound: float = 0.03,
+                      autocorrelation: float = 0.8) -> list["np.ndarray"]:
+    """Noisy copies of a noise-free truth series, one per seed (AR(1) relative noise)."""
+    from bpsflow.synth import Noise, add_noise
+
+    noise = Noise(kind="relative", bound=bound, autocorrelation=autocorrelation)
+    return [add_noise(np.asarray(measured, dtype=float), noise, np.random.default_rng(seed))
+            for seed in seeds]
