@@ -289,5 +289,5 @@ def profile_schedule(profile: pd.DataFrame, year: int) -> pd.Series:
     """The gain profile over the year's hours (hour-ending stamps, 8760 values)."""
     stamps = year_hours(year)
     start = stamps - pd.Timedelta(hours=1)
-    keys = pd.MultiIndex.from_arrays([(start.dayofweek >= 5).astype(int), start.hour])
+    keys = pd.MultiIndex.from_arrays([(start.day_of_week >= 5).astype(int), start.hour])
     return pd.Series(profile["profile"].reindex(keys).to_numpy(), index=stamps)

@@ -58,12 +58,20 @@ Schedule:File,
 """,
 }
 
-#: The driver and extension a correct diagnosis names for each effect.
-EXPECTED: dict[str, tuple[str, str]] = {
-    "wind_infiltration": ("wind_speed", "infiltration_wind"),
-    "constant_infiltration": ("outdoor_air_temperature", "envelope_ua"),
-    "office_gain": ("hour_of_day", "internal_gain_schedule"),
-    "east_aperture": ("incident_solar_east", "solar_aperture"),
+#: The drivers a correct diagnosis may name for each effect, and the extension it must choose.
+EXPECTED: dict[str, tuple[tuple[str, ...], str]] = {
+    "wind_infiltration": (("wind_speed",), "infiltration_wind"),
+    "constant_infiltration": (("outdoor_air_temperature",), "envelope_ua"),
+    "office_gain": (("hour_of_day", "weekend"), "internal_gain_schedule"),
+    "east_aperture": (("incident_solar_east",), "solar_aperture"),
+}
+
+#: The extension parameter that measures each effect's size (same units as the effect's value).
+MEASURE: dict[str, str] = {
+    "wind_infiltration": "infiltration_wind_m3s_per_ms",
+    "constant_infiltration": "extra_conductance_m3s",
+    "office_gain": "scheduled_gain_w",
+    "east_aperture": "solar_aperture_m2",
 }
 
 

@@ -119,7 +119,7 @@ def write_figures(d: Diagnosis, figures: Path) -> dict[str, Path]:
     out["signature"] = _save(fig, figures / "signature_outdoor_temperature.png")
 
     start = stamps - pd.Timedelta(hours=1)
-    table = (pd.DataFrame({"r": residual, "day": start.dayofweek, "hour": start.hour})
+    table = (pd.DataFrame({"r": residual, "day": start.day_of_week, "hour": start.hour})
              .pivot_table(index="day", columns="hour", values="r", aggfunc="mean")
              .reindex(index=range(7), columns=range(24)))
     fig, ax = plt.subplots(figsize=(9, 3.5))

@@ -34,6 +34,10 @@ class DiagnosisSettings(BaseModel):
     ``plausible_change`` (relative) of its nominal value, or within its
     distribution's 1–99 % range when it is uncertain.
 
+    ``suspects`` limits the existing parameters whose signatures are
+    computed (one simulation each; default: every unfitted parameter with a
+    numeric value) — worth setting on EnergyPlus.
+
     ``parameter_candidates``: how many existing parameters, those whose
     characteristic signatures explain most of the residual, are refitted to
     see whether one of them removes the structure.
@@ -64,6 +68,7 @@ class DiagnosisSettings(BaseModel):
     max_rounds: int = Field(default=3, ge=1)
     gain_blocks: int = Field(default=4, ge=1)
     parameter_candidates: int = Field(default=3, ge=1)
+    suspects: list[str] | None = None
     max_fit_iterations: int = Field(default=20, ge=1)
     ensemble_size: int = Field(default=50, ge=2)
     seed: int = 0

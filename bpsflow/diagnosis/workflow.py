@@ -119,6 +119,15 @@ def fitted_parameters(config: Config, settings: DiagnosisSettings) -> list[Param
     from bpsflow.calibration.design import calibration_parameters
     from bpsflow.calibration.settings import CalibrationSettings
 
+    known = {p.name for p in config.parameters}
+    for i, name in enumerate(settings.parameters or []):
+        if name not in known:
+            raise BpsflowError(f"diagnosis.parameters[{i}]: '{name}' is not a parameter of the "
+                               f"config", source=config.source)
+    for i, name in enumerate(settings.suspects or []):
+        if name not in known:
+            raise BpsflowError(f"diagnosis.suspects[{i}]: '{name}' is not a parameter of the "
+                               f"config", source=config.source)
     names = settings.parameters
     if names is None and config.calibration is not None:
         names = config.calibration.parameters
@@ -354,6 +363,8 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
     d, settings = context.data, context.settings
     candidates = candidate_parameters(current.config.parameters,
                                       [p.name for p in current.fitted], settings.plausible_change)
+    if settings.suspects is not None:
+        candidates = [c for c in candidates if c.parameter.name in settings.suspects]
     if not candidates:
         return None
     found = signatures(context.simulator(current.config, "signatures"),
