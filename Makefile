@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed
 JOBS   ?= 2
 DEMO_SAMPLES ?= 200
 
-.PHONY: install demo test bench study study-energyplus calibrate-demo clean
+.PHONY: install demo test bench study study-energyplus calibrate-demo diagnose-demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -38,6 +38,7 @@ bench: $(STAMP)
 	$(PY) bench/metrics_bench.py
 	$(PY) bench/calibration_bench.py
 	$(PY) bench/refine_bench.py --truths 4
+	$(PY) bench/diagnosis_bench.py --nulls 30 --seeds 10 --energyplus
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed
@@ -68,6 +69,13 @@ calibrate-demo: $(STAMP)
 	$(BPS) calibrate configs/calibration.yaml --measured runs/calibration/truth/measured.csv --truth runs/calibration/truth/truth.json --jobs $(JOBS) --no-progress
 	$(BPS) calibrate configs/calibration.yaml --measured runs/calibration/truth/measured.csv --truth runs/calibration/truth/truth.json --jobs $(JOBS) --no-progress --scenarios
 	@echo "results: runs/calibration/calibration/ (calibration.json, posterior.parquet, figures/); scenarios.csv"
+
+# Diagnosis (DESIGN.md §8): measurements of a "real" cell with an effect the model lacks
+# (wind-driven infiltration), then bpsflow diagnose given only the model and the data.
+diagnose-demo: $(STAMP)
+	$(BPS) synth configs/diagnosis_truth.yaml --truth configs/diagnosis_truth_values.yaml
+	$(BPS) diagnose configs/diagnosis.yaml --measured runs/diagnosis_truth/truth/measured.csv --jobs $(JOBS)
+	@echo "report: runs/diagnosis/diagnosis/diagnosis.md (diagnosis.json, figures/)"
 
 clean:
 	rm -rf runs bench/work .pytest_cache

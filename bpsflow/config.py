@@ -449,11 +449,15 @@ def _absolute_paths(raw: dict, base: Path) -> dict:
     return raw
 
 
-def _merge(base: dict, child: dict) -> dict:
-    """Deep-merge ``child`` over ``base``; ``parameters`` merge by name (replace or append)."""
+def _merge(base: dict, child: dict, top: bool = True) -> dict:
+    """Deep-merge ``child`` over ``base``; top-level ``parameters`` merge by name (replace or append).
+
+    Other lists (e.g. ``diagnosis.parameters``, a list of names) are replaced.
+    """
     merged = copy.deepcopy(base)
     for key, value in child.items():
-        if key == "parameters" and isinstance(value, list) and isinstance(merged.get(key), list):
+        if top and key == "parameters" and isinstance(value, list) \
+                and isinstance(merged.get(key), list):
             by_name = {p.get("name"): i for i, p in enumerate(merged[key]) if isinstance(p, dict)}
             for parameter in value:
                 name = parameter.get("name") if isinstance(parameter, dict) else None
@@ -466,7 +470,7 @@ def _merge(base: dict, child: dict) -> dict:
             # A child adds snippets to its base's model (see Model).
             merged[key] = merged[key] + [v for v in value if v not in merged[key]]
         elif isinstance(value, dict) and isinstance(merged.get(key), dict):
-            merged[key] = _merge(merged[key], value)
+            merged[key] = _merge(merged[key], value, top=False)
         else:
             merged[key] = value
     return merged

@@ -254,11 +254,11 @@ def test_bad_diagnosis_input_names_the_key(surrogate_base, tmp_path):
 @pytest.mark.parametrize("effect,value", [("wind_infiltration", 0.004),
                                           ("office_gain", 150.0)])
 def test_hidden_effect_on_energyplus(effect, value, tmp_path):
-    base = base_config(tmp_path / "base", days=13, backend="energyplus",
-                       extra={"diagnosis": {"output": "heating_power_w", "holdout_days": 3,
+    base = base_config(tmp_path / "base", days=20, backend="energyplus",
+                       extra={"diagnosis": {"output": "heating_power_w", "holdout_days": 5,
                                             "parameters": ["glazing_dirt_correction",
                                                            "return_air_offset"],
-                                            "parameter_candidates": 1, "gain_blocks": 2,
+                                            "parameter_candidates": 1, "gain_blocks": 3,
                                             "suspects": ["global_irradiance_gain",
                                                          "exterior_wind_coefficient"],
                                             "max_rounds": 2}})

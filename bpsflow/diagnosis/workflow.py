@@ -39,7 +39,8 @@ import pandas as pd
 from bpsflow.config import Config, Parameter
 from bpsflow.diagnosis import comparison, structure
 from bpsflow.diagnosis.drivers import derive_drivers
-from bpsflow.diagnosis.extensions import (EXTENSIONS, candidates_for, extend_config, facade_of,
+from bpsflow.diagnosis.extensions import (DAY_TYPES, EXTENSIONS, candidates_for, extend_config,
+                                          facade_of,
                                           gain_blocks, profile_schedule, year_hours)
 from bpsflow.diagnosis.fitting import (Fit, Problem, fit_many, output_simulator, parameter_range,
                                        predictive_ensemble, scores)
@@ -302,7 +303,7 @@ def _diagnose_one(context: _Context, base: Model, announce: Announce) -> Diagnos
         if not significant:
             break
         if round_number == 1:
-            explained = _parameter_check(context, result, current, residual)
+            explained = _parameter_check(context, result, current, residual, significant)
             if explained is not None:
                 _accept_parameter(result, *explained, significant[0].name, announce)
                 break
@@ -349,7 +350,7 @@ def _fitted_text(fitted: dict[str, float]) -> str:
 
 
 def _parameter_check(context: _Context, result: Diagnosis, current: Model,
-                     residual: np.ndarray) -> tuple[Model, dict] | None:
+                     residual: np.ndarray, significant: list) -> tuple[Model, dict] | None:
     """Does a plausible change of one existing, unfitted parameter remove the structure?
 
     Screen: project the residual on every candidate's characteristic
@@ -403,14 +404,20 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
                                                by_name[e.name].upper))})
                 for e in shortlist]
     fits = context.fit(config, "parameters", problems)
+    before = {t.name: t.share for t in significant}
     best = None
     for e, fit in zip(shortlist, fits):
-        left = [t.name for t in context.test((d.y - fit.prediction)[d.calibration])
-                if t.significant]
+        after = context.test((d.y - fit.prediction)[d.calibration])
+        left = [t.name for t in after if t.significant]
+        # explained: nothing significant left AND each driver lost at least half its share
+        # (a weak refit can push p over alpha without explaining the structure)
+        shares = {t.name: t.share for t in after}
+        halved = all(shares.get(name, 0.0) <= 0.5 * share for name, share in before.items())
         record = next(r for r in result.parameter_check if r["name"] == e.name)
         record.update(refitted=float(fit.named[e.name]), structure_left=left,
-                      objective=fit.objective)
-        if not left and (best is None or fit.objective < best[1].objective):
+                      driver_shares_after={name: shares.get(name, 0.0) for name in before},
+                      objective=fit.objective, explains=bool(not left and halved))
+        if not left and halved and (best is None or fit.objective < best[1].objective):
             best = (e, fit)
     if best is None:
         return None
@@ -486,6 +493,9 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                 {**v[3], "objective": f.objective,
                  "fitted": {_reported(p): float(f.named[p.name]) for p in v[2]}}
                 for v, f in mine]}
+        if name == "internal_gain_schedule" and "schedule" in detail:
+            extended, new, detail, fit = _refine_block(context, current, extended, new, detail,
+                                                       fit, round_number)
         per_candidate.append((name, driver, extended, new, detail, fit))
     before = context.block_scores(current.fit)
     held, cal = ~d.calibration, d.calibration
@@ -519,6 +529,61 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                  f"{bic_after:.1f}: {'passes' if passed else 'rejected'}")
         out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{name}")))
     return out
+
+
+def _refine_block(context: _Context, current: Model, extended: Config, new: list[Parameter],
+                  detail: dict, fit: Fit, round_number: int, steps: int = 3):
+    """Move the best gain block's edges an hour at a time while the refit improves.
+
+    The screen that shortlisted the blocks is linear; the winner's edges are
+    checked by refitting its neighbours (start ± 1 h, end ± 1 h) in one batch,
+    up to ``steps`` times.
+    """
+    d, config = context.data, current.config
+    extension = EXTENSIONS["internal_gain_schedule"]
+    tried = {(v["schedule"]["day_type"], v["schedule"]["start_hour"], v["schedule"]["end_hour"])
+             for v in detail.get("variants", [detail])}
+    best = (extended, new, detail, fit)
+    full = pd.MultiIndex.from_product([[0, 1], range(24)], names=["weekend", "hour"])
+    for step in range(steps):
+        block = best[2]["schedule"]
+        day_type, first, last = block["day_type"], block["start_hour"], block["end_hour"]
+        neighbours = [(day_type, a, b) for a, b in ((first - 1, last), (first + 1, last),
+                                                    (first, last - 1), (first, last + 1))
+                      if 0 <= a < b <= 24 and (day_type, a, b) not in tried]
+        if not neighbours:
+            break
+        tried.update(neighbours)
+        union, variants = config, []
+        for number, (kind, a, b) in enumerate(neighbours, start=1):
+            on_weekday, on_weekend = DAY_TYPES[kind]
+            profile = pd.DataFrame({"profile": [float(bool(on_weekend if w else on_weekday)
+                                                      and a <= h < b) for w, h in full]},
+                                   index=full)
+            schedule = profile_schedule(profile, config.model.year)
+            directory = (context.out_dir / "extensions"
+                         / f"round{round_number}_internal_gain_schedule" / f"edge{step}")
+            variant = extend_config(config, extension, directory, schedule, number)
+            union = extend_config(union, extension, directory, schedule, number)
+            added = [p for p in variant.parameters if p.name not in
+                     {q.name for q in config.parameters}]
+            variants.append((variant, added, {"day_type": kind, "start_hour": a, "end_hour": b}))
+        level = float(next(iter(best[3].named[p.name] for p in best[1])))
+        problems = [Problem(context.sample_of(union, current.fit), [*current.fitted, *added],
+                            d.y, d.calibration,
+                            {**best[3].named, **{p.name: level for p in added}})
+                    for _, added, _ in variants]
+        fits = context.fit(union, f"round{round_number}_edges{step}", problems)
+        (variant, added, block), refit = min(zip(variants, fits),
+                                             key=lambda pair: pair[1].objective)
+        best[2].setdefault("variants", []).extend(
+            {"schedule": b, "objective": f.objective,
+             "fitted": {_reported(p): float(f.named[p.name]) for p in a}}
+            for (_, a, b), f in zip(variants, fits))
+        if refit.objective >= best[3].objective:
+            break
+        best = (variant, added, {**best[2], "schedule": block}, refit)
+    return best
 
 
 def _reported(parameter: Parameter) -> str:
