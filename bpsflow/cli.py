@@ -57,6 +57,9 @@ def _write_resolved(cfg) -> None:
 
 
 RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.")
+BackendOption = typer.Option(None, help="Override model.backend.")
+JobsOption = typer.Option(None, "--jobs", "-j", help="Parallel processes for the simulations.")
+NoProgressOption = typer.Option(False, help="No progress bars.")
 
 
 @app.command()
@@ -453,11 +456,10 @@ def calibrate(config: Path = ConfigArg,
                                                      "converged (R-hat, ESS, divergences)."),
               out: Optional[Path] = typer.Option(None, help="Output folder (default "
                                                  "RUN_DIR/calibration)."),
-              backend: Optional[str] = typer.Option(None, help="Override model.backend."),
-              jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes "
-                                                 "for the simulations."),
+              backend: Optional[str] = BackendOption,
+              jobs: Optional[int] = JobsOption,
               run_dir: Optional[Path] = RunDirOption,
-              no_progress: bool = typer.Option(False, help="No progress bars.")) -> None:
+              no_progress: bool = NoProgressOption) -> None:
     """Calibrate to measured data (Kennedy-O'Hagan or deterministic); test on held-out days."""
     from bpsflow.calibration.command import apply_overrides, calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
@@ -486,11 +488,10 @@ def diagnose(config: Path = ConfigArg,
              measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
              out: Optional[Path] = typer.Option(None, help="Output folder (default "
                                                 "RUN_DIR/diagnosis)."),
-             backend: Optional[str] = typer.Option(None, help="Override model.backend."),
-             jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes "
-                                                "for the simulations."),
+             backend: Optional[str] = BackendOption,
+             jobs: Optional[int] = JobsOption,
              run_dir: Optional[Path] = RunDirOption,
-             no_progress: bool = typer.Option(False, help="No progress bars.")) -> None:
+             no_progress: bool = NoProgressOption) -> None:
     """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
     from bpsflow.diagnosis.command import run_diagnose
 

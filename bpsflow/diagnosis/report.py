@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from bpsflow.diagnosis.drivers import DRIVER_UNITS
 from bpsflow.diagnosis.workflow import Diagnosis
 
 JSON_FILE = "diagnosis.json"
@@ -139,7 +140,8 @@ def write_figures(d: Diagnosis, figures: Path) -> dict[str, Path]:
     ax.scatter(values, residual, s=4, alpha=0.35, color="tab:green", label="hourly")
     _binned(ax, values, residual)
     ax.axhline(0, color="k", lw=0.8)
-    ax.set_xlabel(top)
+    unit = DRIVER_UNITS.get(top, "")
+    ax.set_xlabel(f"{top} ({unit})" if unit else top)
     ax.set_ylabel(f"residual ({d.output})")
     ax.set_title(f"residual vs the strongest driver ({top})")
     ax.legend()

@@ -20,8 +20,13 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+#: The extensions implemented on both backends (bpsflow/diagnosis/extensions.py). The
+#: brief also names thermal_mass and stratification: the first needs an InternalMass
+#: that EnergyPlus cannot nest at zero area; the model's stratification is already an
+#: input (stratification_gradient, return_air_offset), so a mis-valued one is a
+#: ``parameter`` verdict.
 ExtensionName = Literal["infiltration_wind", "internal_gain_schedule", "solar_aperture",
-                        "envelope_ua", "thermal_mass", "stratification"]
+                        "envelope_ua"]
 
 
 class DiagnosisSettings(BaseModel):
