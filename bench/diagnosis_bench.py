@@ -120,7 +120,7 @@ def false_alarms(work: Path, base: Path, count: int) -> tuple[float, float]:
 
 
 def detection_limit(work: Path, base: Path, seeds: int,
-                    values=(0.0001, 0.0002, 0.0003, 0.0005)) -> dict:
+                    values=(0.0001, 0.0002, 0.0003, 0.0004, 0.0005)) -> dict:
     found = {}
     for value in values:
         case = make_case(base, work / f"wind_{value:g}", "wind_infiltration", value,
@@ -199,7 +199,7 @@ def main() -> None:
     parser.add_argument("--nulls", type=int, default=30)
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--energyplus", action="store_true")
-    parser.add_argument("--sweep", default="0.0001,0.0002,0.0003,0.0005",
+    parser.add_argument("--sweep", default="0.0001,0.0002,0.0003,0.0004,0.0005",
                         help="wind infiltration coefficients (m3/s per m/s) to sweep")
     parser.add_argument("--parts", default="cases,nulls,sweep",
                         help="comma-separated: cases, nulls, sweep")
