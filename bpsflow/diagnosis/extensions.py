@@ -273,16 +273,21 @@ def gain_blocks(residual: pd.Series, output_sign: float,
             chosen.append(item)
         if len(chosen) >= count:
             break
+    return [(block_profile(day_type, first, last),
+             {"day_type": day_type, "start_hour": first, "end_hour": last, "level": level})
+            for _, day_type, first, last, _, level in chosen]
+
+
+def block_profile(day_type: str, start_hour: int, end_hour: int) -> pd.DataFrame:
+    """1 during ``[start_hour, end_hour)`` on the days of ``day_type``, else 0.
+
+    Column ``profile`` indexed by ``weekend`` (0/1) × ``hour`` (0–23, hour start).
+    """
     full = pd.MultiIndex.from_product([[0, 1], range(24)], names=["weekend", "hour"])
-    out = []
-    for _, day_type, first, last, _, level in chosen:
-        on_weekday, on_weekend = DAY_TYPES[day_type]
-        profile = [float(bool(on_weekend if w else on_weekday) and first <= h < last)
-                   for w, h in full]
-        out.append((pd.DataFrame({"profile": profile}, index=full),
-                    {"day_type": day_type, "start_hour": first, "end_hour": last,
-                     "level": level}))
-    return out
+    on_weekday, on_weekend = DAY_TYPES[day_type]
+    return pd.DataFrame({"profile": [float(bool(on_weekend if w else on_weekday)
+                                           and start_hour <= h < end_hour) for w, h in full]},
+                        index=full)
 
 
 def profile_schedule(profile: pd.DataFrame, year: int) -> pd.Series:

@@ -49,18 +49,19 @@ def parameter_range(parameter: Parameter) -> tuple[float, float]:
 
 
 def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, *,
-                     backend: str, work_dir: Path, jobs: int | None = None) -> Simulator:
+                     backend: str, work_dir: Path, jobs: int | None = None,
+                     sequences_dir: Path | None = None) -> Simulator:
     """A :data:`Simulator` of ``output`` at ``timestamps`` (hour-ending) on ``backend``.
 
-    The surrogate runs a batch in one vectorised call; EnergyPlus runs each
-    batch in a fresh run directory under ``work_dir`` (in parallel, ``jobs``).
+    The surrogate runs a batch in one vectorised call, reading the boundary
+    sequences from ``sequences_dir`` (default ``work_dir``; drawn there once,
+    so simulators that share it do not draw them again). EnergyPlus runs
+    each batch in a fresh run directory under ``work_dir`` (in parallel,
+    ``jobs``).
     """
-    from bpsflow.boundary import ensure_sequences
     from bpsflow.calibration.design import run_config, run_samples
 
     work_dir = Path(work_dir)
-    cfg = run_config(config, work_dir, backend)
-    ensure_sequences(cfg)
     calls = {"n": 0}
 
     def to_matrix(tidy: pd.DataFrame, labels: list) -> np.ndarray:
@@ -74,7 +75,11 @@ def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, 
         return wide.reindex(index=labels, columns=timestamps).to_numpy(dtype=float)
 
     if backend == "surrogate":
+        from bpsflow.boundary import ensure_sequences
         from bpsflow.surrogate import simulate_instances
+
+        cfg = run_config(config, Path(sequences_dir or work_dir), backend)
+        ensure_sequences(cfg)
 
         def simulate(samples: pd.DataFrame) -> np.ndarray:
             tidy, _ = simulate_instances(cfg, samples, cfg.run_dir)
@@ -83,7 +88,7 @@ def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, 
 
     def simulate_energyplus(samples: pd.DataFrame) -> np.ndarray:
         calls["n"] += 1
-        tidy = run_samples(cfg, samples, work_dir / f"batch_{calls['n']:03d}",
+        tidy = run_samples(config, samples, work_dir / f"batch_{calls['n']:03d}",
                            backend=backend, jobs=jobs, fresh=True, show_progress=False)
         return to_matrix(tidy, list(samples.index))
     return simulate_energyplus
@@ -124,14 +129,6 @@ class Problem:
     calibration: np.ndarray
     start: dict[str, float] | None = None
     nmbe_weight: float = 1.0
-
-
-def fit_parameters(simulate: Simulator, base_sample: dict[str, float],
-                   parameters: list[Parameter], measured: np.ndarray, calibration: np.ndarray,
-                   *, start: dict[str, float] | None = None, max_iterations: int = 20) -> Fit:
-    """Fit ``parameters`` to ``measured`` on the ``calibration`` hours (see :func:`fit_many`)."""
-    return fit_many(simulate, [Problem(base_sample, parameters, measured, calibration, start)],
-                    max_iterations=max_iterations)[0]
 
 
 def fit_many(simulate: Simulator, problems: list[Problem], *, max_iterations: int = 20,

@@ -39,9 +39,9 @@ import pandas as pd
 from bpsflow.config import Config, Parameter
 from bpsflow.diagnosis import comparison, structure
 from bpsflow.diagnosis.drivers import derive_drivers
-from bpsflow.diagnosis.extensions import (DAY_TYPES, EXTENSIONS, candidates_for, extend_config,
-                                          facade_of,
-                                          gain_blocks, profile_schedule, year_hours)
+from bpsflow.diagnosis.extensions import (EXTENSIONS, block_profile, candidates_for,
+                                          extend_config, facade_of, gain_blocks,
+                                          profile_schedule, year_hours)
 from bpsflow.diagnosis.fitting import (Fit, Problem, fit_many, output_simulator, parameter_range,
                                        predictive_ensemble, scores)
 from bpsflow.diagnosis.settings import DiagnosisSettings
@@ -246,7 +246,7 @@ class _Context:
     def simulator(self, config: Config, label: str):
         return output_simulator(config, self.data.output, self.data.timestamps,
                                 backend=self.backend, work_dir=self.out_dir / "runs" / label,
-                                jobs=self.jobs)
+                                jobs=self.jobs, sequences_dir=self.out_dir / "runs")
 
     @staticmethod
     def sample_of(config: Config, fit: Fit | None = None) -> dict[str, float]:
@@ -544,7 +544,6 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     tried = {(v["schedule"]["day_type"], v["schedule"]["start_hour"], v["schedule"]["end_hour"])
              for v in detail.get("variants", [detail])}
     best = (extended, new, detail, fit)
-    full = pd.MultiIndex.from_product([[0, 1], range(24)], names=["weekend", "hour"])
     for step in range(steps):
         block = best[2]["schedule"]
         day_type, first, last = block["day_type"], block["start_hour"], block["end_hour"]
@@ -556,11 +555,7 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
         tried.update(neighbours)
         union, variants = config, []
         for number, (kind, a, b) in enumerate(neighbours, start=1):
-            on_weekday, on_weekend = DAY_TYPES[kind]
-            profile = pd.DataFrame({"profile": [float(bool(on_weekend if w else on_weekday)
-                                                      and a <= h < b) for w, h in full]},
-                                   index=full)
-            schedule = profile_schedule(profile, config.model.year)
+            schedule = profile_schedule(block_profile(kind, a, b), config.model.year)
             directory = (context.out_dir / "extensions"
                          / f"round{round_number}_internal_gain_schedule" / f"edge{step}")
             variant = extend_config(config, extension, directory, schedule, number)
