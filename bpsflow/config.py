@@ -202,7 +202,7 @@ class Model(_Strict):
 
     ``idf_objects`` lists IDF snippet files whose objects are appended to
     ``idf`` (e.g. the extensions ``bpsflow diagnose`` tries); both backends and
-    ``bpsflow check`` read the model as :func:`bpsflow.surrogate.idf.model_text`
+    ``bpsflow check`` read the model as :func:`bpsflow.simulation.idf.model_text`
     assembles it, so a parameter may target a field of an object that lives in
     a snippet. Paths are relative to the config file that lists them; a
     relative ``Schedule:File`` name inside a snippet is relative to the

@@ -203,7 +203,7 @@ def add_detailed_outputs(config: Config) -> list[str]:
 
 def _idf(config: Config):
     # The surrogate's IDD-free reader: geometry and fields without EnergyPlus installed.
-    from bpsflow.surrogate.idf import model_objects
+    from bpsflow.simulation.idf import model_objects
 
     return model_objects(config.model)
 
@@ -293,7 +293,7 @@ def air_sensor_heights(floor_z_m: float, ceiling_height_m: float,
 
 def cell_geometry(config: Config) -> CellGeometry:
     """Sensor separation, glazed area, view factor and boundary sensor areas from the model."""
-    from bpsflow.surrogate.idf import centroid_height, polygon_area
+    from bpsflow.simulation.idf import centroid_height, polygon_area
 
     idf = _idf(config)
     ceiling, floor = _surface(idf, SURFACE_CLASSES["ceiling"]), _surface(idf, SURFACE_CLASSES["floor"])
@@ -346,7 +346,7 @@ def true_field_value(config: Config, sample: dict[str, float], object_type: str,
     """An IDF field's value in the instance of ``sample``: the model's value with every
     parameter targeting the field applied in config order (as instances are written)."""
     from bpsflow.instances import apply_mode
-    from bpsflow.surrogate.idf import normalise
+    from bpsflow.simulation.idf import normalise
 
     idf = _idf(config)
     object_type = object_type.upper()
@@ -454,7 +454,7 @@ def true_boundary_temperatures(config: Config, sample: dict[str, float],
 
 def true_ground_reflectance(config: Config, sample: dict[str, float]) -> dict[str, float]:
     """Month name -> the instance's ground reflectance (Site:GroundReflectance)."""
-    from bpsflow.surrogate.idf import FIELDS
+    from bpsflow.simulation.idf import FIELDS
 
     return {field.split()[0]: true_field_value(config, sample, "Site:GroundReflectance", "", field)
             for field in FIELDS["SITE:GROUNDREFLECTANCE"]}

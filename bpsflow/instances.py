@@ -67,14 +67,14 @@ def open_idf(path: Path, idd: Path):
 def open_model(model: Model, idd: Path):
     """Parse the whole model (``model.idf`` and its ``idf_objects`` snippets) with eppy.
 
-    The text is :func:`bpsflow.surrogate.idf.model_text`, the one assembly of
+    The text is :func:`bpsflow.simulation.idf.model_text`, the one assembly of
     the model both backends read.
     """
     from io import StringIO
 
     from eppy.modeleditor import IDF
 
-    from bpsflow.surrogate.idf import describe_model, model_text
+    from bpsflow.simulation.idf import describe_model, model_text
 
     text = model_text(model)
     _set_idd(str(idd))
@@ -130,7 +130,7 @@ def resolve_targets(config: Config, idf) -> ResolvedTargets:
 
 
 def _model_files(config: Config) -> str:
-    from bpsflow.surrogate.idf import describe_model
+    from bpsflow.simulation.idf import describe_model
 
     return describe_model(config.model)
 
@@ -365,7 +365,7 @@ def _check_schedule_files(config: Config, filled: set[str]) -> None:
     EnergyPlus would stop with a fatal error in every instance; this names
     the schedule and the file that declares it before anything runs.
     """
-    from bpsflow.surrogate.idf import model_objects
+    from bpsflow.simulation.idf import model_objects
 
     for obj in model_objects(config.model).of_type("SCHEDULE:FILE"):
         file_name = obj.get("File Name").strip()

@@ -12,7 +12,7 @@ from bpsflow.config import load_config
 from bpsflow.surrogate import ignored_targets, simulate_instances
 from bpsflow.surrogate.cell import build_cell
 from bpsflow.surrogate.forcing import constant_forcing
-from bpsflow.surrogate.idf import polygon_area, read_idf
+from bpsflow.simulation.idf import polygon_area, read_idf
 from bpsflow.surrogate.network import build_network, simulate
 from bpsflow.surrogate.params import field_values, sample_columns
 from bpsflow.surrogate.solar import double_glazing

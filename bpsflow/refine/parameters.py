@@ -6,7 +6,7 @@ config may name its parameters freely. Estimates are physical values (α in
 W/m²·K^(1+n), a gradient in K/m); a parameter may be ``relative`` (a
 multiplier on the IDF's nominal value), ``absolute`` or ``additive``, so each
 estimate is expressed in its parameter's units with the nominal read from the
-IDF (:func:`bpsflow.surrogate.idf.read_idf`).
+IDF (:func:`bpsflow.simulation.idf.read_idf`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pydantic import TypeAdapter
 from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Distribution, Empirical
 from bpsflow.errors import BpsflowError
-from bpsflow.surrogate.idf import UNNAMED, IdfModel, normalise
+from bpsflow.simulation.idf import UNNAMED, IdfModel, normalise
 
 #: Central probability of the intervals reported before and after refinement.
 INTERVAL = 0.90

@@ -68,7 +68,7 @@ from bpsflow.refine.parameters import (INTERVAL, bounded_normal, class_surface,
                                        in_parameter_units, inside_convection_curve, interval,
                                        parameter_nominal, parameters_targeting,
                                        std_in_parameter_units, targets_field)
-from bpsflow.surrogate.idf import model_objects
+from bpsflow.simulation.idf import model_objects
 
 #: Half-width of a central 90 % normal interval in standard errors.
 _Z90 = float(stats.norm.ppf(0.5 + INTERVAL / 2))

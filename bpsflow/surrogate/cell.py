@@ -39,7 +39,7 @@ import numpy as np
 
 from bpsflow.config import Config
 from bpsflow.errors import BpsflowError
-from bpsflow.surrogate.idf import IdfModel, IdfObject, centroid_height, polygon_area
+from bpsflow.simulation.idf import IdfModel, IdfObject, centroid_height, polygon_area
 from bpsflow.surrogate.params import FieldValues
 from bpsflow.surrogate.schedules import Schedule, read_schedule
 from bpsflow.surrogate.solar import GlazingTables, double_glazing

@@ -21,7 +21,7 @@ from bpsflow.config import BoundaryTarget, Config, Period, Test, WeatherTarget, 
 from bpsflow.errors import BpsflowError
 from bpsflow.instances import day_setpoints
 from bpsflow.surrogate.cell import Cell
-from bpsflow.surrogate.idf import model_objects
+from bpsflow.simulation.idf import model_objects
 from bpsflow.surrogate.solar import (SHADING_DAYS, beam_floor_fraction, facade_irradiance,
                                      sun_positions)
 from bpsflow.weather import perturb, read_epw

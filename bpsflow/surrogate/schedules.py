@@ -17,7 +17,7 @@ apply to no day of a run period).
 ``Schedule:File`` rows count hours from 1 January (row ``r`` covers the
 hour ending at ``r + 1`` h), on a 365-day year as EnergyPlus maps an
 8760-hour file; a relative file name was made absolute against the file
-declaring the schedule by :func:`bpsflow.surrogate.idf.model_objects`. The run
+declaring the schedule by :func:`bpsflow.simulation.idf.model_objects`. The run
 periods use no daylight saving time, so "Adjust Schedule for Daylight
 Savings" changes nothing.
 """
@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.errors import BpsflowError
-from bpsflow.surrogate.idf import IdfModel, IdfObject
+from bpsflow.simulation.idf import IdfModel, IdfObject
 
 #: Day types of a Schedule:Compact ``For:`` field that apply to a weekday (Monday = 0).
 _WEEKDAY_NAMES = ("MONDAY", "TUESDAY", "WEDNESDAY", "THURSDAY", "FRIDAY", "SATURDAY", "SUNDAY")
