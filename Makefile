@@ -77,5 +77,11 @@ diagnose-demo: $(STAMP)
 	$(BPS) diagnose configs/diagnosis.yaml --measured runs/diagnosis_truth/truth/measured.csv --jobs $(JOBS)
 	@echo "report: runs/diagnosis/diagnosis/diagnosis.md (diagnosis.json, figures/)"
 
+# Scratch only: run folders, benchmark work folders, pytest's cache (all git-ignored).
+# Refuses if git tracks anything there, so a clean never deletes committed files.
+SCRATCH := runs bench/work .pytest_cache
 clean:
-	rm -rf runs bench/work .pytest_cache
+	@tracked="$$(git ls-files -- $(SCRATCH) 2>/dev/null | head -n 3)"; \
+	if [ -n "$$tracked" ]; then echo "make clean: git tracks files under $(SCRATCH), e.g.:"; \
+	  echo "$$tracked"; echo "untrack them (git rm -r --cached) first"; exit 1; fi
+	rm -rf $(SCRATCH)

@@ -10,10 +10,29 @@ from __future__ import annotations
 import json
 import os
 import platform
+import tempfile
 from datetime import date
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results.json"
+#: Every benchmark's scratch lives here: ignored by git, removed by ``make clean``.
+WORK = Path(__file__).resolve().parent / "work"
+
+
+def work_root() -> Path:
+    """``bench/work/``, created if needed: the parent of every benchmark's scratch.
+
+    The benchmarks write thousands of instance files; keeping them inside the
+    ignored ``bench/work/`` (not the system temp folder) means a crashed or
+    interrupted run leaves nothing behind that ``make clean`` does not remove.
+    """
+    WORK.mkdir(parents=True, exist_ok=True)
+    return WORK
+
+
+def scratch(prefix: str) -> Path:
+    """A new, empty folder under ``bench/work/`` for one benchmark run (kept afterwards)."""
+    return Path(tempfile.mkdtemp(prefix=prefix, dir=work_root()))
 
 
 def measured_on() -> str:

@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,7 +36,7 @@ configure_jax(4)
 import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 
-from benchlib import record  # noqa: E402
+from benchlib import record, scratch  # noqa: E402
 from bpsflow.calibration.command import apply_overrides, calibrate  # noqa: E402
 from bpsflow.calibration.design import calibration_parameters, unit_to_values  # noqa: E402
 from bpsflow.calibration.report import parameter_table  # noqa: E402
@@ -95,7 +94,7 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=None)
     args = parser.parse_args()
     quiet = Console(file=open(os.devnull, "w"))
-    work = args.work or Path(tempfile.mkdtemp(prefix="bpsflow-calibration-"))
+    work = args.work or scratch("calibration-")
     print(f"work folder: {work}")
 
     # the shipped truth

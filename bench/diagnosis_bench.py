@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -33,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from benchlib import record  # noqa: E402
+from benchlib import record, scratch  # noqa: E402
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.diagnosis.hidden import EXPECTED, MEASURE, make_case, null_measurements  # noqa: E402
 from bpsflow.diagnosis.workflow import diagnose, diagnose_many  # noqa: E402
@@ -205,7 +204,7 @@ def main() -> None:
                         help="comma-separated: cases, nulls, sweep")
     args = parser.parse_args()
     parts = set(args.parts.split(","))
-    work = Path(tempfile.mkdtemp(prefix="bpsflow_diagnosis_bench_"))
+    work = scratch("diagnosis-")
     base = base_config(work)
     rows = []
     if "cases" in parts:

@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
-from benchlib import record  # noqa: E402
+from benchlib import record, work_root  # noqa: E402
 
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.refine import refine, write_refinement  # noqa: E402
@@ -65,7 +65,7 @@ def main() -> None:
     command = f"python bench/refine_bench.py --truths {args.truths}"
     for backend in args.backends:
         hits, ratios, glazing, rows = [], [], [], []
-        with tempfile.TemporaryDirectory() as work:
+        with tempfile.TemporaryDirectory(prefix=f"refine-{backend}-", dir=work_root()) as work:
             for k, truth in enumerate(truths(config, args.truths, args.seed)):
                 folder = Path(work) / f"truth{k}"
                 synthesize(config, truth, folder, backend=backend, detailed=True)

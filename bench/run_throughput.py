@@ -27,7 +27,7 @@ import pandas as pd
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
-from benchlib import record  # noqa: E402
+from benchlib import WORK, record  # noqa: E402
 
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.energyplus import find_energyplus, idd_path, run_energyplus  # noqa: E402
@@ -39,7 +39,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--instances", type=int, default=60)
     parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--work", type=Path, default=HERE / "work" / "throughput")
+    parser.add_argument("--work", type=Path, default=WORK / "throughput")
     args = parser.parse_args()
     config_path = ROOT / "configs" / "i600.yaml"
     work = args.work.resolve()

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from benchlib import record  # noqa: E402
+from benchlib import record, work_root  # noqa: E402
 
 from bpsflow.boundary import draw_sequences, period_hours, write_sequences  # noqa: E402
 from bpsflow.config import load_config, test_dates  # noqa: E402
@@ -99,7 +99,7 @@ def main() -> None:
     command = "python bench/surrogate_bench.py" + (
         f" --energyplus-run {args.energyplus_run}" if args.energyplus_run else "")
 
-    with tempfile.TemporaryDirectory(prefix="bpsflow-surrogate-bench-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="surrogate-", dir=work_root()) as tmp:
         tmp = Path(tmp)
         # Fidelity ------------------------------------------------------
         config = load_config(args.config)
