@@ -107,21 +107,30 @@ def _sample(cfg) -> Path:
 
 @app.command()
 @_friendly
-def check(config: Path = ConfigArg) -> None:
-    """Validate the config and every IDF target against the model, without running."""
-    from bpsflow.energyplus import find_energyplus, idd_path
-    from bpsflow.instances import check_model
+def check(config: Path = ConfigArg,
+          backend: Optional[str] = BackendOption) -> None:
+    """Validate the config, every IDF target and the thermostats against the model; nothing runs."""
+    from bpsflow.simulation.backend import choose_backend
 
     cfg = _load(config, None)
-    binary = find_energyplus(cfg.model.energyplus)
-    if binary is None:
-        console.print("config is valid; no EnergyPlus binary found, IDF targets not checked")
-        return
-    targets = check_model(cfg, idd_path(binary))
-    fields = sum(len(v) for v in targets.idf_fields.values())
-    console.print(f"config is valid: {len(cfg.parameters)} parameters, {fields} IDF fields, "
-                  f"{len(targets.weather)} weather and {len(targets.boundary)} boundary samplers; "
-                  f"{len(cfg.model.tests)} tests in {len(cfg.model.periods)} run period(s)")
+    _set_backend(cfg, backend)
+    chosen = choose_backend(cfg, err_console.print)
+    report = chosen.check(cfg)
+    zones = (f"; setpoints control zone(s) {', '.join(report.controlled_zones)}"
+             if report.controlled_zones else "")
+    console.print(f"config is valid for {report.backend}: {len(cfg.parameters)} parameters, "
+                  f"{report.idf_fields} IDF fields, {report.weather_targets} weather and "
+                  f"{report.boundary_targets} boundary targets; {len(cfg.model.tests)} tests in "
+                  f"{len(cfg.model.periods)} run period(s){zones}", highlight=False)
+    for note in report.notes:
+        err_console.print(f"[yellow]{note}[/yellow]", highlight=False)
+
+
+def _set_backend(cfg, backend: Optional[str]) -> None:
+    if backend is not None:
+        if backend not in ("energyplus", "surrogate", "auto"):
+            raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got '{backend}'")
+        cfg.model.backend = backend
 
 
 @app.command()
@@ -131,9 +140,9 @@ def instances(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
                                                  help="Instance(s) to write."),
               out: Optional[Path] = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
     """Write instance inputs (IDF per period, weather, boundary data) without running them."""
-    from bpsflow.energyplus import find_energyplus, idd_path
-    from bpsflow.instances import write_instance
     from bpsflow.sampling import read_samples
+    from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
+    from bpsflow.simulation.energyplus.instances import write_instance
 
     cfg = _load(config, run_dir)
     samples = read_samples(cfg.run_dir.resolve())
@@ -159,43 +168,46 @@ def run(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Run every instance (sampling first if needed); resume skips finished instances."""
     from bpsflow.plots import band_summary, plot_bands
-    from bpsflow.runner import run as run_all
     from bpsflow.sampling import SAMPLES_FILE, read_samples
+    from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
+    from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
 
     cfg = _load(config, run_dir)
-    if backend is not None:
-        if backend not in ("energyplus", "surrogate", "auto"):
-            raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got '{backend}'")
-        cfg.model.backend = backend
+    _set_backend(cfg, backend)
+    chosen = choose_backend(cfg, err_console.print)
     rd = cfg.run_dir.resolve()
+    observed = read_measured(measured) if measured else None
     if not (rd / SAMPLES_FILE).is_file():
         console.print(f"no samples in {rd}: sampling first")
         _sample(cfg)
     else:
         _write_resolved(cfg)
-    observed = read_measured(measured) if measured else None
-    summary = run_all(cfg, read_samples(rd), jobs=jobs, retry_failed=retry_failed,
-                      keep_inputs=keep_inputs, show_progress=not no_progress)
-    from bpsflow.runner import read_results
-
+    summary = run_ensemble(cfg, read_samples(rd), chosen, jobs=jobs, retry_failed=retry_failed,
+                           keep_inputs=keep_inputs, show_progress=not no_progress)
+    if summary.ok == 0 and summary.total:
+        err_console.print(f"[bold red]error:[/bold red] {all_failed_message(summary, rd)}",
+                          highlight=False, soft_wrap=True)
+        raise typer.Exit(code=1)
     results = read_results(rd)
     figures = plot_bands(cfg, results, rd / "figures", observed) if len(results) else []
     table = Table(title=f"{cfg.name}: {summary.ok}/{summary.total} instances ok "
                         f"({summary.backend}, {summary.seconds:.1f} s)")
-    for column in ("test", "output", "unit", "instances", "mean", "band_width"):
+    for column in ("test", "output", "reports", "unit", "instances", "mean", "band_width"):
         table.add_column(column, justify="right" if column in ("instances", "mean", "band_width")
-                         else "left")
+                         else "left", overflow="fold")
     for row in band_summary(cfg, results).itertuples():
-        table.add_row(row.test, row.output, row.unit, str(row.instances), f"{row.mean:.3g}",
-                      f"{row.band_width:.3g}")
+        table.add_row(row.test, row.output, cfg.outputs[row.output].label, row.unit,
+                      str(row.instances), f"{row.mean:.3g}", f"{row.band_width:.3g}")
     console.print(table)
     console.print(f"ran {summary.ran}, skipped {summary.skipped} finished, {summary.failed} "
                   f"failed; results: {rd / 'results.parquet'}; figures: {len(figures)} in "
                   f"{rd / 'figures'}")
     if summary.failed:
         console.print(f"[yellow]{summary.failed} instance(s) failed: see "
-                      f"{rd / 'manifest.parquet'} (status, error)[/yellow]")
+                      f"{rd / 'manifest.parquet'} (status, error); first error: "
+                      f"{summary.first_error}[/yellow]", highlight=False)
         raise typer.Exit(code=1)
 
 
@@ -236,7 +248,7 @@ def validate(config: Path = ConfigArg,
              run_dir: Optional[Path] = RunDirOption) -> None:
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
     from bpsflow.plots import plot_bands
-    from bpsflow.runner import read_results
+    from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
     from bpsflow.validation import validate as run_validation, write_outputs
 
@@ -306,7 +318,9 @@ def sensitivity(
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
-    from bpsflow.runner import choose_backend, read_results, run as run_all
+    from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
+    from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
 
     cfg = _load(config, run_dir)
@@ -324,16 +338,13 @@ def sensitivity(
                            f"got {screen}")
     if screen_out is not None and screen is None:
         raise BpsflowError("--screen-out needs --screen N (how many inputs to keep per response)")
-    if backend is not None:
-        if backend not in ("energyplus", "surrogate", "auto"):
-            raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got '{backend}'")
-        cfg.model.backend = backend
+    _set_backend(cfg, backend)
     mcfg = morris.morris_config(cfg, trajectories, levels)
     observed = read_measured(measured) if measured else None
     if observed is not None:
         morris.check_measured(mcfg, observed, measured)
     chosen = choose_backend(mcfg, announce=err_console.print)
-    samples = morris.prepare_morris(mcfg, chosen, announce=err_console.print)
+    samples = morris.prepare_morris(mcfg, chosen.name, announce=err_console.print)
     md = mcfg.run_dir.resolve()
     varied = morris.varied_parameters(mcfg)
     k = len(varied)
@@ -341,14 +352,9 @@ def sensitivity(
     err_console.print(f"Morris design: {mcfg.design.trajectories} trajectories × ({k} + 1) = "
                       f"{len(samples)} runs, {mcfg.design.levels} levels"
                       + (f"; {fixed} constant parameter(s) not stepped" if fixed else ""))
-    summary = run_all(mcfg, samples, jobs=jobs, show_progress=not no_progress, backend=chosen)
+    summary = run_ensemble(mcfg, samples, chosen, jobs=jobs, show_progress=not no_progress)
     if summary.ok == 0:
-        from bpsflow.runner import read_manifest
-
-        errors = read_manifest(md)["error"]
-        first = next((e for e in errors if e), "no error recorded")
-        raise BpsflowError(f"all {summary.total} Morris runs failed (first error: {first}); "
-                           f"see {md / 'manifest.parquet'}")
+        raise BpsflowError(all_failed_message(summary, md, "Morris runs"))
     results = read_results(md)
     responses = morris.window_responses(mcfg, results, observed, kind, measured)
     unit = morris.read_unit_design(md)

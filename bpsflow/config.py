@@ -221,15 +221,44 @@ class Model(_Strict):
     periods: list[Period] = Field(min_length=1)
     tests: list[Test] = Field(min_length=1)
     boundary: Boundary | None = None
+    thermostat_zones: list[str] | None = Field(default=None, min_length=1)
+    """Zones whose ``ZoneControl:Thermostat`` carries the tests' setpoints (default:
+    every thermostat of the model). See :mod:`bpsflow.simulation.setpoints`."""
 
 
 class OutputVariable(_Strict):
-    """An EnergyPlus output variable (name as in the SQLite dictionary) and its key."""
+    """An EnergyPlus output variable and its key, or a meter, at a reporting frequency.
 
-    variable: str
-    key: str
+    ``variable`` is the name as in the SQLite dictionary (e.g. ``Zone Mean Air
+    Temperature``) and ``key`` its key value (a zone, surface or equipment
+    name); ``meter`` names a meter instead (e.g. ``Electricity:Facility``; no
+    key). ``frequency`` is ``hourly`` (hour-ending means) or ``timestep``
+    (every zone time step, ``model.timesteps_per_hour`` values per hour).
+    Values are multiplied by ``scale``.
+    """
+
+    variable: str | None = None
+    key: str | None = None
+    meter: str | None = None
     unit: str = ""
     scale: float = 1.0
+    frequency: Literal["hourly", "timestep"] = "hourly"
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "OutputVariable":
+        if (self.variable is None) == (self.meter is None):
+            raise ValueError("give either 'variable' (with 'key') or 'meter'")
+        if self.variable is not None and not self.key:
+            raise ValueError(f"variable '{self.variable}' needs a 'key' (the zone, surface or "
+                             f"equipment name it reports for)")
+        if self.meter is not None and self.key:
+            raise ValueError("a meter has no 'key'")
+        return self
+
+    @property
+    def label(self) -> str:
+        """``key: variable`` or ``meter`` for tables and figures."""
+        return f"{self.key}: {self.variable}" if self.variable else f"meter {self.meter}"
 
 
 class Design(_Strict):
@@ -262,8 +291,22 @@ class Config(_Strict):
     validation: ValidationSettings = Field(default_factory=ValidationSettings)
     calibration: CalibrationSettings | None = None
     diagnosis: DiagnosisSettings | None = None
+    #: Where the detailed sensors are (``synth --detailed``, ``refine``): optional IDF names of
+    #: the ``zone`` and of the ``wall``, ``ceiling``, ``floor`` and ``window`` surfaces; what is
+    #: left out is chosen from the model's geometry (:func:`bpsflow.detailed.sensor_surfaces`).
+    detailed: dict[Literal["zone", "wall", "ceiling", "floor", "window"], str] = Field(
+        default_factory=dict)
     #: Where the config came from (set by :func:`load_config`).
     source: Path | None = Field(default=None, exclude=True)
+
+    @field_validator("outputs")
+    @classmethod
+    def _output_names(cls, outputs: dict[str, OutputVariable]) -> dict[str, OutputVariable]:
+        for name in outputs:
+            if not re.match(_NAME, name):
+                raise ValueError(f"output name '{name}': expected letters, digits, '_', '-' or "
+                                 f"'.', starting with a letter or '_' (it names files)")
+        return outputs
 
     @model_validator(mode="after")
     def _cross_check(self) -> "Config":

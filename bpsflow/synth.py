@@ -170,7 +170,8 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     With ``detailed`` the same run also reports the detailed measurements over
     every run period's whole span (see :func:`write_detailed_measurements`).
     """
-    from bpsflow.runner import choose_backend, run_instance
+    from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.ensemble import console, simulate_samples
 
     out_dir.mkdir(parents=True, exist_ok=True)
     every_output = sorted(config.outputs)
@@ -182,26 +183,19 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
 
         add_detailed_outputs(full)
     full.source = config.source
-    from bpsflow.boundary import ensure_sequences
-
-    ensure_sequences(config)
     sample = truth_sample(config, truth)
-    backend = backend or choose_backend(config)
-    if backend == "surrogate":
-        from bpsflow.surrogate import simulate_tidy
-
-        outputs = simulate_tidy(full, pd.DataFrame([sample], index=pd.Index(["truth"],
-                                                                           name="instance")))
-    else:
-        from bpsflow.energyplus import find_energyplus, idd_path
-
-        binary = find_energyplus(config.model.energyplus)
-        record = run_instance(full, "truth", sample, out_dir, binary, idd_path(binary))
-        if record.status != "ok":
-            raise BpsflowError(f"the truth instance failed: {record.error}")
-        from bpsflow.runner import INSTANCE_OUTPUTS, instance_dir
-
-        outputs = pd.read_parquet(instance_dir(out_dir, "truth") / INSTANCE_OUTPUTS)
+    if backend is not None:
+        full.model.backend = backend
+    simulator = choose_backend(full, console.print)
+    frame = pd.DataFrame([sample], index=pd.Index([0], name="instance"))
+    try:
+        # The truth draws from the run directory's boundary sequences, like its ensemble.
+        outputs = simulate_samples(full, frame, out_dir / "simulation", simulator,
+                                   sequences_dir=config.run_dir.resolve(), what="truth runs")
+    except BpsflowError as exc:
+        raise BpsflowError(f"the truth instance failed: {exc}") from None
+    outputs = outputs.assign(instance="truth")
+    backend = simulator.name
     measured = measurements_from_outputs(config, outputs, truth)
     path = out_dir / MEASURED_FILE
     measured.to_csv(path, index_label="timestamp", float_format="%.6g")

@@ -66,7 +66,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     from bpsflow.calibration import workflow
     from bpsflow.calibration.report import write
     from bpsflow.calibration.scenarios import write_comparison
-    from bpsflow.runner import choose_backend
+    from bpsflow.simulation.backend import choose_backend
     from bpsflow.synth import read_measured
 
     console = console or Console()
@@ -94,7 +94,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
 
         configure_jax(settings.bayes.chains)
     out = Path(out) if out else config.run_dir.resolve() / DEFAULT_OUT
-    chosen_backend = choose_backend(config)
+    chosen_backend = choose_backend(config, console.print).name
     design = workflow.prepare_design(config, settings, out / "design", chosen_backend, jobs,
                                      show_progress)
     truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None

@@ -38,7 +38,7 @@ from bpsflow.calibration.settings import (DEFAULT_VARIABLE_INPUTS, CalibrationSe
 from bpsflow.config import Config, Parameter, Test, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
+from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 from bpsflow.sampling import latin_hypercube_unit
 
 DESIGN_DIR = "design"
@@ -128,16 +128,6 @@ def design_unit(settings: CalibrationSettings, n_parameters: int) -> np.ndarray:
 # Running the design
 
 
-def run_config(config: Config, run_dir: Path, backend: str | None = None) -> Config:
-    """A copy of ``config`` that runs in ``run_dir`` (with ``backend`` if given)."""
-    copy = config.model_copy(deep=True)
-    copy.execution.run_dir = Path(run_dir)
-    copy.source = config.source
-    if backend is not None:
-        copy.model.backend = backend
-    return copy
-
-
 def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend: str,
                 jobs: int | None = None, fresh: bool = False, show_progress: bool = True
                 ) -> pd.DataFrame:
@@ -153,8 +143,10 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
         When instances failed (their errors are in ``run_dir/manifest.parquet``).
     """
     from bpsflow.boundary import ensure_sequences
-    from bpsflow.runner import read_manifest, read_results, run
     from bpsflow.sampling import SAMPLES_FILE
+    from bpsflow.simulation.backend import get_backend
+    from bpsflow.simulation.ensemble import run_config, run_ensemble
+    from bpsflow.simulation.rundir import read_results
 
     run_dir = Path(run_dir).resolve()
     previous = run_dir / SAMPLES_FILE
@@ -165,14 +157,11 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
     samples.reset_index().to_parquet(previous, index=False)
     cfg = run_config(config, run_dir, backend)
     ensure_sequences(cfg)
-    summary = run(cfg, samples, backend=backend, show_progress=show_progress, jobs=jobs)
+    summary = run_ensemble(cfg, samples, get_backend(backend), show_progress=show_progress,
+                           jobs=jobs)
     if summary.failed:
-        manifest = read_manifest(run_dir)
-        first = manifest[manifest["status"] != "ok"].head(1)
-        detail = f": instance {int(first['instance'].iloc[0])}: {first['error'].iloc[0]}" \
-            if len(first) else ""
         raise BpsflowError(f"{summary.failed} of {summary.total} calibration runs failed in "
-                           f"{run_dir}{detail}")
+                           f"{run_dir}: {summary.first_error}")
     return read_results(run_dir)
 
 
@@ -231,7 +220,7 @@ class Paired:
 
 def system_of(config: Config, output: str) -> str | None:
     """``heating`` / ``cooling`` for an ideal-loads rate output, else None (a state variable)."""
-    variable = config.outputs[output].variable.upper()
+    variable = (config.outputs[output].variable or config.outputs[output].meter or "").upper()
     if "HEATING" in variable:
         return "heating"
     if "COOLING" in variable:

@@ -273,19 +273,20 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
 def _simulator_predictor(config, parameters, paired: Paired, obs_rows, measured, source,
                          scenario, settings, backend):
     """Predict the calibration rows by running the surrogate (deterministic ``model: simulator``)."""
-    if backend != "surrogate":
-        raise BpsflowError("calibration.deterministic.model: 'simulator' needs the surrogate "
-                           f"backend (each objective evaluation is a simulation), not {backend}; "
-                           "use model: emulator", source=config.source)
-    from bpsflow.boundary import ensure_sequences
-    from bpsflow.surrogate import simulate_instances
+    from bpsflow.simulation.backend import get_backend
+    from bpsflow.simulation.ensemble import simulate_samples
 
+    simulator = get_backend(backend)
+    if not simulator.vectorised:
+        raise BpsflowError("calibration.deterministic.model: 'simulator' needs a vectorised "
+                           f"backend such as the surrogate (each objective evaluation is a "
+                           f"simulation), not {backend}; use model: emulator",
+                           source=config.source)
     keys = paired.rows.iloc[obs_rows][["time", "output"]]
-    ensure_sequences(config)
 
     def predict(unit: np.ndarray) -> np.ndarray:
         samples = design_module.samples_frame(config, parameters, unit)
-        tidy, _ = simulate_instances(config, samples, config.run_dir)
+        tidy = simulate_samples(config, samples, config.run_dir, simulator)
         sim = design_module.pair(config, tidy, measured, scenario.outputs, scenario.resolution,
                                  settings.holdout_days, settings.idle_fraction, source)
         index = pd.MultiIndex.from_frame(sim.rows[["time", "output"]])

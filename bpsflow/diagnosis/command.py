@@ -21,7 +21,7 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
 
     ``out`` defaults to ``RUN_DIR/diagnosis``. Returns the :class:`Diagnosis`.
     """
-    from bpsflow.runner import choose_backend
+    from bpsflow.simulation.backend import choose_backend
     from bpsflow.synth import read_measured
 
     console = console or Console()
@@ -29,7 +29,7 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     if backend is not None:
         config = config.model_copy(deep=True, update={})
         config.model.backend = backend
-    chosen = choose_backend(config, console.print)
+    chosen = choose_backend(config, console.print).name
     out = Path(out) if out is not None else config.run_dir / "diagnosis"
     settings = settings_of(config)
     # base fit, signatures or one fit per candidate extension per round: an estimate the bar extends

@@ -59,9 +59,11 @@ def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, 
     each batch in a fresh run directory under ``work_dir`` (in parallel,
     ``jobs``).
     """
-    from bpsflow.calibration.design import run_config, run_samples
+    from bpsflow.simulation.backend import get_backend
+    from bpsflow.simulation.ensemble import simulate_samples
 
     work_dir = Path(work_dir)
+    simulator = get_backend(backend)
     calls = {"n": 0}
 
     def to_matrix(tidy: pd.DataFrame, labels: list) -> np.ndarray:
@@ -74,24 +76,14 @@ def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, 
                              f"hour(s), first {missing[0]}")
         return wide.reindex(index=labels, columns=timestamps).to_numpy(dtype=float)
 
-    if backend == "surrogate":
-        from bpsflow.boundary import ensure_sequences
-        from bpsflow.surrogate import simulate_instances
-
-        cfg = run_config(config, Path(sequences_dir or work_dir), backend)
-        ensure_sequences(cfg)
-
-        def simulate(samples: pd.DataFrame) -> np.ndarray:
-            tidy, _ = simulate_instances(cfg, samples, cfg.run_dir)
-            return to_matrix(tidy, list(samples.index))
-        return simulate
-
-    def simulate_energyplus(samples: pd.DataFrame) -> np.ndarray:
+    def simulate(samples: pd.DataFrame) -> np.ndarray:
         calls["n"] += 1
-        tidy = run_samples(config, samples, work_dir / f"batch_{calls['n']:03d}",
-                           backend=backend, jobs=jobs, fresh=True, show_progress=False)
+        # A vectorised backend simulates in this process and shares one folder of
+        # boundary sequences; another runs each batch in a fresh folder.
+        tidy = simulate_samples(config, samples, work_dir / f"batch_{calls['n']:03d}", simulator,
+                                jobs=jobs, sequences_dir=Path(sequences_dir or work_dir))
         return to_matrix(tidy, list(samples.index))
-    return simulate_energyplus
+    return simulate
 
 
 @dataclass

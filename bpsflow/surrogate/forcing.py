@@ -19,7 +19,7 @@ import pandas as pd
 from bpsflow.boundary import SEQUENCES_FILE, read_boundary_file, read_sequences
 from bpsflow.config import BoundaryTarget, Config, Period, Test, WeatherTarget, period_dates
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import day_setpoints
+from bpsflow.simulation.setpoints import day_setpoints
 from bpsflow.surrogate.cell import Cell
 from bpsflow.simulation.idf import model_objects
 from bpsflow.surrogate.solar import (SHADING_DAYS, beam_floor_fraction, facade_irradiance,

@@ -17,7 +17,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, WeatherTarget
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import apply_mode
+from bpsflow.simulation.targets import apply_mode
 from bpsflow.simulation.idf import FIELDS, UNNAMED, IdfModel, describe_model, normalise
 
 Key = tuple[str, str, str]  # (TYPE, NAME upper, normalised field)

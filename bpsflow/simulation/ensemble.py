@@ -1,0 +1,239 @@
+"""The one ensemble loop: every command that runs instances goes through it.
+
+:func:`run_ensemble` runs the unfinished instances of a design in a run
+directory on any :class:`~bpsflow.simulation.backend.Backend`:
+
+- **resume** — an instance with a readable ``outputs.parquet`` is finished and
+  skipped; a failed one runs again only with ``retry_failed``;
+- **failure isolation** — a failed instance is recorded in the manifest with
+  its error excerpt and never stops the others;
+- **lock** — one process at a time per run directory;
+- **progress** — a rich bar counting finished instances and failures;
+- **executor** — tasks go to a replaceable executor (default: local processes),
+  a chunk of instances per task for a vectorised backend, one otherwise.
+
+:func:`simulate_samples` is the in-memory form for callers that need outputs
+of a batch now (fits, calibration designs): a vectorised backend simulates the
+batch in this process; others run it through :func:`run_ensemble` in a fresh
+directory.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+from rich.console import Console
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                           TimeElapsedColumn, TimeRemainingColumn)
+
+from bpsflow.errors import BpsflowError
+from bpsflow.simulation import rundir
+from bpsflow.simulation.backend import Backend, Batch, get_backend
+from bpsflow.simulation.executor import Executor, local_executor
+from bpsflow.simulation.rundir import InstanceRecord
+
+if TYPE_CHECKING:
+    from bpsflow.config import Config
+
+console = Console(stderr=True)
+
+
+@dataclass
+class RunSummary:
+    """What :func:`run_ensemble` did."""
+
+    backend: str
+    total: int
+    ran: int
+    skipped: int
+    ok: int
+    failed: int
+    seconds: float
+    first_error: str = ""
+
+
+def _chunks(labels: list[int], backend: Backend, jobs: int) -> list[list[int]]:
+    if not backend.vectorised:
+        return [[label] for label in labels]
+    per_chunk = int(min(500, max(50, math.ceil(len(labels) / (2 * jobs)))))
+    return [labels[i:i + per_chunk] for i in range(0, len(labels), per_chunk)]
+
+
+def _run_chunk(backend_name: str, config: Config, chunk: pd.DataFrame, run_dir: Path,
+               keep_inputs: bool) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
+    """Simulate one chunk in a worker and write each finished instance's outputs there."""
+    backend = get_backend(backend_name)
+    started = time.perf_counter()
+    try:
+        batch = backend.simulate(config, chunk, run_dir, keep_inputs=keep_inputs)
+    except Exception as exc:  # a chunk-wide failure is recorded per instance, the run goes on
+        seconds = (time.perf_counter() - started) / max(len(chunk), 1)
+        message = str(exc) if isinstance(exc, BpsflowError) else f"{type(exc).__name__}: {exc}"
+        records = [InstanceRecord(instance=int(i), status="failed", seconds=seconds,
+                                  error=message, backend=backend_name) for i in chunk.index]
+        return records, {}
+    outputs: dict[int, pd.DataFrame] = {}
+    by_instance = dict(tuple(batch.tidy.groupby("instance", sort=False))) if len(batch.tidy) \
+        else {}
+    for record in batch.records:
+        record.backend = backend_name
+        if record.status != "ok":
+            continue
+        frame = by_instance.get(record.instance)
+        if frame is None or not len(frame):
+            record.status, record.error = "failed", "the backend returned no outputs"
+            continue
+        if not np.isfinite(frame["value"].to_numpy(dtype=float)).all():
+            record.status, record.error = "failed", "non-finite outputs"
+            continue
+        rundir.write_instance_outputs(run_dir, record.instance, frame)
+        outputs[record.instance] = frame
+    return batch.records, outputs
+
+
+def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
+                 jobs: int | None = None, retry_failed: bool = False, keep_inputs: bool = False,
+                 show_progress: bool = True, executor: Executor | None = None,
+                 label: str | None = None) -> RunSummary:
+    """Run every unfinished instance of ``samples`` in ``config.run_dir``.
+
+    Parameters
+    ----------
+    config : Config
+    samples : DataFrame
+        Indexed by instance (int), one column per parameter.
+    backend : Backend
+        From :func:`~bpsflow.simulation.backend.choose_backend`.
+    jobs : int, optional
+        Worker processes (default ``execution.jobs``, else the CPU count).
+    retry_failed : bool
+        Run instances recorded as failed again (finished ones are always skipped).
+    keep_inputs : bool
+        Keep each instance's input files (EnergyPlus: IDF, EPW, CSV).
+    executor : Executor, optional
+        Where tasks run (default: :class:`~bpsflow.simulation.executor.LocalExecutor`).
+
+    Returns
+    -------
+    RunSummary
+    """
+    started = time.perf_counter()
+    run_dir = rundir.prepare_run_dir(config.run_dir.resolve())
+    if "instance" in samples.columns:
+        samples = samples.set_index("instance")
+    samples.index = samples.index.astype(int)
+    backend.check(config)
+    executor = executor or local_executor(jobs or config.execution.jobs)
+    wanted = [int(i) for i in samples.index]
+    with rundir.RunLock(run_dir):
+        records = rundir.manifest_records(run_dir)
+        finished = rundir.finished_instances(run_dir, wanted)
+        failed_before = {i for i, r in records.items() if r.status == "failed"} - finished
+        todo = [i for i in wanted if i not in finished
+                and (retry_failed or i not in failed_before)]
+        for i in finished:
+            if i not in records or records[i].status != "ok":
+                records[i] = InstanceRecord(instance=i, status="ok", seconds=0.0,
+                                            backend=backend.name)
+        chunks = _chunks(todo, backend, executor.jobs)
+        if todo:
+            console.print(f"running {len(todo)} instance(s) on {backend.name} with "
+                          f"{min(executor.jobs, len(chunks))} job(s); {len(finished)} finished "
+                          f"before, {len(failed_before - set(todo))} failed before (not retried)")
+        fresh: dict[int, pd.DataFrame] = {}
+        failed = 0
+        columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TextColumn("[red]{task.fields[failed]} failed"), TimeElapsedColumn(),
+                   TextColumn("ETA"), TimeRemainingColumn()]
+        try:
+            with Progress(*columns, console=console,
+                          disable=not show_progress or not todo) as progress:
+                task = progress.add_task(label or backend.name, total=len(todo), failed=0)
+                tasks = ((backend.name, config, samples.loc[chunk], run_dir, keep_inputs)
+                         for chunk in chunks)
+                since_write = 0
+                for chunk_records, outputs in executor.map_unordered(_run_chunk, tasks):
+                    fresh.update(outputs)
+                    for record in chunk_records:
+                        records[record.instance] = record
+                        failed += record.status != "ok"
+                    progress.update(task, advance=len(chunk_records), failed=failed)
+                    since_write += len(chunk_records)
+                    if since_write >= 50:
+                        rundir.write_manifest(run_dir, records)
+                        since_write = 0
+        finally:
+            rundir.write_manifest(run_dir, records)
+            rundir.collect_results(run_dir, wanted, fresh)
+    ok = sum(records[i].status == "ok" for i in wanted if i in records)
+    first_error = next((records[i].error for i in wanted
+                        if i in records and records[i].status != "ok" and records[i].error), "")
+    return RunSummary(backend=backend.name, total=len(wanted), ran=len(todo),
+                      skipped=len(wanted) - len(todo), ok=ok, failed=len(wanted) - ok,
+                      seconds=time.perf_counter() - started, first_error=first_error)
+
+
+def all_failed_message(summary: RunSummary, run_dir: Path, what: str = "instances") -> str:
+    """``all N instances failed`` with the first error excerpt."""
+    return (f"all {summary.total} {what} failed on {summary.backend}; the first error: "
+            f"{summary.first_error or 'none recorded'} (every error: "
+            f"{Path(run_dir) / rundir.MANIFEST_FILE})")
+
+
+def run_config(config: Config, run_dir: Path, backend: str | None = None) -> Config:
+    """A copy of ``config`` that runs in ``run_dir`` (with ``model.backend`` set if given)."""
+    copy = config.model_copy(deep=True)
+    copy.execution.run_dir = Path(run_dir)
+    copy.source = config.source
+    if backend is not None:
+        copy.model.backend = backend
+    return copy
+
+
+def simulate_samples(config: Config, samples: pd.DataFrame, workdir: Path, backend: Backend, *,
+                     jobs: int | None = None, show_progress: bool = False, what: str = "runs",
+                     sequences_dir: Path | None = None) -> pd.DataFrame:
+    """Tidy outputs of ``samples`` now, on ``backend``, with scratch files under ``workdir``.
+
+    A vectorised backend simulates the whole batch in this process; another
+    runs it through :func:`run_ensemble` in ``workdir`` (cleared first, in
+    parallel, ``jobs``). The instances draw their boundary sequences from
+    ``sequences_dir`` (default ``workdir``; drawn there when missing).
+
+    Raises
+    ------
+    BpsflowError
+        When an instance failed (naming it and its error), so a fit never
+        works on part of a batch.
+    """
+    from bpsflow.boundary import SEQUENCES_FILE, ensure_sequences
+
+    workdir = Path(workdir)
+    sequences_dir = Path(sequences_dir or workdir)
+    rundir.prepare_run_dir(sequences_dir)
+    ensure_sequences(run_config(config, sequences_dir))
+    if backend.vectorised:
+        batch: Batch = backend.simulate(run_config(config, sequences_dir), samples, sequences_dir)
+        bad = [r for r in batch.records if r.status != "ok"]
+        if bad:
+            raise BpsflowError(f"{len(bad)} of {len(samples)} {what} failed on {backend.name}: "
+                               f"instance {bad[0].instance}: {bad[0].error}")
+        return batch.tidy
+    if workdir.exists() and workdir.resolve() != sequences_dir.resolve():
+        shutil.rmtree(workdir)
+    rundir.prepare_run_dir(workdir)
+    if config.model.boundary is not None and workdir.resolve() != sequences_dir.resolve():
+        shutil.copy2(sequences_dir / SEQUENCES_FILE, workdir / SEQUENCES_FILE)
+    summary = run_ensemble(run_config(config, workdir), samples, backend, jobs=jobs,
+                           show_progress=show_progress)
+    if summary.failed:
+        raise BpsflowError(f"{summary.failed} of {summary.total} {what} failed in {workdir}: "
+                           f"{summary.first_error}")
+    return rundir.read_results(workdir)
