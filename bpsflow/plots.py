@@ -5,13 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+from bpsflow.config import Config, test_dates
 
-from bpsflow.config import Config, test_dates  # noqa: E402
+# Figures are bare ``Figure`` objects, not pyplot's: they render to PNG with Agg
+# headless, leave the process's backend alone and need no closing.
 
 
 def ensemble_band(results: pd.DataFrame, test: str, output: str,
@@ -42,7 +43,8 @@ def plot_bands(config: Config, results: pd.DataFrame, out_dir: Path,
             if band.empty:
                 continue
             unit = config.outputs[output].unit
-            fig, ax = plt.subplots(figsize=(10, 3.6), constrained_layout=True)
+            fig = Figure(figsize=(10, 3.6), layout="constrained")
+            ax = fig.subplots()
             ax.fill_between(band.index, band["lower"], band["upper"], color="0.75",
                             label=f"{coverage:.0%} band ({int(band['members'].max())} instances)")
             ax.plot(band.index, band["mean"], color="black", lw=1.2, label="ensemble mean")
@@ -58,7 +60,6 @@ def plot_bands(config: Config, results: pd.DataFrame, out_dir: Path,
             ax.grid(alpha=0.3)
             path = out_dir / f"band_{test.name}_{output}.png"
             fig.savefig(path, dpi=110)
-            plt.close(fig)
             paths.append(path)
     return paths
 
@@ -102,8 +103,9 @@ def plot_mu_star_sigma(indices: pd.DataFrame, path: Path, title: str = "", unit:
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     groups = list(dict.fromkeys((group_order or []) + list(indices["group"])))
-    colours = plt.get_cmap("tab10" if len(groups) <= 10 else "tab20")
-    fig, ax = plt.subplots(figsize=(7.5, 5.5), constrained_layout=True)
+    colours = matplotlib.colormaps["tab10" if len(groups) <= 10 else "tab20"]
+    fig = Figure(figsize=(7.5, 5.5), layout="constrained")
+    ax = fig.subplots()
     for g, group in enumerate(groups):
         rows = indices[indices["group"] == group]
         if len(rows):
@@ -127,5 +129,4 @@ def plot_mu_star_sigma(indices: pd.DataFrame, path: Path, title: str = "", unit:
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

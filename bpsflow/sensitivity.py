@@ -62,6 +62,7 @@ from bpsflow.alignment import align, evaluation_hours
 from bpsflow.config import Config, Parameter
 from bpsflow.distributions import Constant
 from bpsflow.errors import BpsflowError
+from bpsflow.files import jsonable, write_csv, write_json
 from bpsflow.sampling import UNIT_DESIGN_FILE, Design, morris_unit, transform
 
 MORRIS_DIR = "morris"
@@ -196,8 +197,8 @@ def prepare_morris(config: Config, backend: str,
     from bpsflow.sampling import read_samples, write_design
 
     run_dir = config.run_dir.resolve()
-    # a JSON round trip, so that the comparison with the stored settings is like for like
-    settings = json.loads(json.dumps(design_settings(config, backend)))
+    # as write_json stores them, so that the comparison with the stored settings is like for like
+    settings = jsonable(design_settings(config, backend))
     settings_path = run_dir / SETTINGS_FILE
     if (run_dir / "samples.parquet").is_file():
         old = json.loads(settings_path.read_text()) if settings_path.is_file() else {}
@@ -217,7 +218,7 @@ def prepare_morris(config: Config, backend: str,
     ensure_sequences(config)
     (run_dir / "config.resolved.yaml").write_text(
         yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
-    settings_path.write_text(json.dumps(settings, indent=1))
+    write_json(settings_path, settings)
     return design.values
 
 
@@ -451,8 +452,8 @@ def write_tables(indices: pd.DataFrame, groups: pd.DataFrame, out_dir: Path) -> 
     """Write ``sensitivity.csv`` and ``sensitivity_groups.csv`` into ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"indices": out_dir / INDICES_FILE, "groups": out_dir / GROUPS_FILE}
-    indices[INDEX_COLUMNS].to_csv(paths["indices"], index=False, float_format="%.6g")
-    groups[GROUP_COLUMNS].to_csv(paths["groups"], index=False, float_format="%.6g")
+    write_csv(indices[INDEX_COLUMNS], paths["indices"], index=False, float_format="%.6g")
+    write_csv(groups[GROUP_COLUMNS], paths["groups"], index=False, float_format="%.6g")
     return paths
 
 

@@ -14,20 +14,17 @@ ASHRAE Guideline 14 hourly criteria.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bpsflow import metrics  # noqa: E402
-from bpsflow.alignment import Aligned, align  # noqa: E402
-from bpsflow.config import Config  # noqa: E402
+from bpsflow import metrics
+from bpsflow.alignment import Aligned, align
+from bpsflow.config import Config
+from bpsflow.files import write_csv, write_json
 
 TEMPERATURE_UNITS = {"C", "°C", "DEGC", "K"}
 
@@ -106,15 +103,13 @@ def write_outputs(validations: list[TestValidation], out_dir: Path, q: float) ->
     """``validation.json``, ``validation.csv`` and the score-distribution figure."""
     out_dir.mkdir(parents=True, exist_ok=True)
     table = pd.DataFrame([v.row for v in validations])
-    csv = out_dir / "validation.csv"
-    table.to_csv(csv, index=False, float_format="%.6g")
+    csv = write_csv(table, out_dir / "validation.csv", index=False, float_format="%.6g")
     payload = {"q": q, "type_i_risk": 1 - q, "tests": [
         {**v.row, "scores": {"valid": np.round(v.scores, 8).tolist(),
                              "invalid": None if v.invalid_scores is None
                              else np.round(v.invalid_scores, 8).tolist()}}
         for v in validations]}
-    path = out_dir / "validation.json"
-    path.write_text(json.dumps(payload, indent=2, default=float))
+    path = write_json(out_dir / "validation.json", payload)
     figure = plot_scores(validations, out_dir / "figures" / "validation_scores.png")
     return {"json": path, "csv": csv, "figure": figure}
 
@@ -125,8 +120,9 @@ def plot_scores(validations: list[TestValidation], path: Path) -> Path:
     n = len(validations)
     columns = min(3, n)
     rows = int(np.ceil(n / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows),
-                             constrained_layout=True, squeeze=False)
+    # a bare Figure (no pyplot): renders headless with Agg, no global backend choice
+    fig = Figure(figsize=(4.2 * columns, 3.2 * rows), layout="constrained")
+    axes = fig.subplots(rows, columns, squeeze=False)
     for ax, v in zip(axes.ravel(), validations):
         bins = np.histogram_bin_edges(np.concatenate(
             [v.scores] + ([v.invalid_scores] if v.invalid_scores is not None else [])), 30)
@@ -145,5 +141,4 @@ def plot_scores(validations: list[TestValidation], path: Path) -> Path:
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

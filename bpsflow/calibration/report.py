@@ -22,15 +22,13 @@ import json
 import math
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bpsflow.calibration.design import unit_to_values  # noqa: E402
-from bpsflow.calibration.workflow import CalibrationRun  # noqa: E402
+from bpsflow.calibration.design import unit_to_values
+from bpsflow.calibration.workflow import CalibrationRun
+from bpsflow.files import write_csv, write_json, write_parquet
 
 CALIBRATION_FILE = "calibration.json"
 POSTERIOR_FILE = "posterior.parquet"
@@ -243,13 +241,13 @@ def write(run: CalibrationRun, out_dir: Path) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"json": out_dir / CALIBRATION_FILE, "heldout": out_dir / HELDOUT_FILE}
     record = calibration_record(run)
-    paths["json"].write_text(json.dumps(record, indent=2, default=_json_default))
-    run.heldout.to_csv(paths["heldout"], index=False, float_format="%.6g")
-    observations_frame(run).to_parquet(out_dir / OBSERVATIONS_FILE, index=False)
-    run.emulator.fit_points.to_parquet(out_dir / EMULATOR_POINTS_FILE, index=False)
+    write_json(paths["json"], record)
+    write_csv(run.heldout, paths["heldout"], index=False, float_format="%.6g")
+    write_parquet(observations_frame(run), out_dir / OBSERVATIONS_FILE, index=False)
+    write_parquet(run.emulator.fit_points, out_dir / EMULATOR_POINTS_FILE, index=False)
     if run.posterior is not None:
         paths["posterior"] = out_dir / POSTERIOR_FILE
-        posterior_frame(run).to_parquet(paths["posterior"], index=False)
+        write_parquet(posterior_frame(run), paths["posterior"], index=False)
     figures = out_dir / "figures"
     figures.mkdir(exist_ok=True)
     paths["figures"] = figures
@@ -262,16 +260,6 @@ def write(run: CalibrationRun, out_dir: Path) -> dict[str, Path]:
     return paths
 
 
-def _json_default(value):
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (pd.Timestamp, Path)):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
 # ---------------------------------------------------------------------------
 # Figures
 
@@ -279,8 +267,9 @@ def _json_default(value):
 def _grid(n: int, width: float = 3.0, height: float = 2.3):
     cols = min(n, 3)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows),
-                             constrained_layout=True, squeeze=False)
+    # a bare Figure (no pyplot): renders headless with Agg, no global backend choice
+    fig = Figure(figsize=(width * cols, height * rows), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     return fig, axes.ravel()
@@ -307,7 +296,6 @@ def plot_prior_posterior(run: CalibrationRun, path: Path) -> Path:
     axes[0].legend(fontsize=6)
     fig.suptitle(f"{run.scenario.name}: prior vs posterior", fontsize=9)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -331,7 +319,6 @@ def plot_emulator_test(run: CalibrationRun, path: Path) -> Path | None:
     fig.suptitle(f"{run.scenario.name}: emulator test ({len(test.test_runs)} held-out runs)",
                  fontsize=9)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -346,7 +333,8 @@ def plot_heldout(run: CalibrationRun, folder: Path) -> list[Path]:
     for output in pd.unique(physical.rows["output"]):
         mine = (physical.rows["output"] == output).to_numpy()
         times = physical.rows["time"][mine]
-        fig, ax = plt.subplots(figsize=(9, 3.4), constrained_layout=True)
+        fig = Figure(figsize=(9, 3.4), layout="constrained")
+        ax = fig.subplots()
         prior_mine = (prior.rows["output"] == output).to_numpy()
         lo, hi = np.quantile(prior.simulated[prior_mine], [0.05, 0.95], axis=1)
         ax.fill_between(times, lo, hi, color="0.85", label="prior 90 %")
@@ -374,7 +362,6 @@ def plot_heldout(run: CalibrationRun, folder: Path) -> list[Path]:
         ax.grid(alpha=0.3)
         path = folder / f"heldout_{output}_{resolution}.png"
         fig.savefig(path, dpi=110)
-        plt.close(fig)
         paths.append(path)
     return paths
 
@@ -392,5 +379,4 @@ def plot_trace(run: CalibrationRun, path: Path) -> Path:
         ax.set_title(f"{name} (R-hat {rhat:.3f})", fontsize=7)
         ax.tick_params(labelsize=6)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path

@@ -18,14 +18,13 @@ import json
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from bpsflow.calibration.report import parameter_table  # noqa: E402
-from bpsflow.calibration.workflow import CalibrationRun  # noqa: E402
+from bpsflow.calibration.report import parameter_table
+from bpsflow.calibration.workflow import CalibrationRun
+from bpsflow.files import write_csv, write_json
 
 SCENARIOS_CSV = "scenarios.csv"
 SCENARIOS_JSON = "scenarios.json"
@@ -65,8 +64,9 @@ def write_comparison(runs: list[CalibrationRun], out_dir: Path) -> dict[str, Pat
     table = comparison_table(runs)
     paths = {"csv": out_dir / SCENARIOS_CSV, "json": out_dir / SCENARIOS_JSON,
              "figure": out_dir / "figures" / "scenarios.png"}
-    table.to_csv(paths["csv"], index=False, float_format="%.6g")
-    paths["json"].write_text(json.dumps(json.loads(table.to_json(orient="records")), indent=2))
+    write_csv(table, paths["csv"], index=False, float_format="%.6g")
+    # through pandas' JSON first: the file has always held its number and time formats
+    write_json(paths["json"], json.loads(table.to_json(orient="records")))
     paths["figure"].parent.mkdir(exist_ok=True)
     plot_comparison(runs, paths["figure"])
     return paths
@@ -76,10 +76,10 @@ def plot_comparison(runs: list[CalibrationRun], path: Path) -> Path:
     """Left: posterior 90 % intervals per parameter and scenario on the prior's scale
     (seed Figure 4.8). Right: held-out CV(RMSE) or RMSE per scenario (Figure 4.9)."""
     parameters = runs[0].parameters
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 0.45 * len(parameters) + 2.2),
-                                      constrained_layout=True,
-                                      gridspec_kw={"width_ratios": [1.3, 1]})
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    # a bare Figure (no pyplot): renders headless with Agg, no global backend choice
+    fig = Figure(figsize=(12, 0.45 * len(parameters) + 2.2), layout="constrained")
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.3, 1]})
+    colours = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     offsets = np.linspace(-0.3, 0.3, len(runs)) if len(runs) > 1 else [0.0]
     for k, run in enumerate(runs):
         for j, entry in enumerate(parameter_table(run)):
@@ -116,5 +116,4 @@ def plot_comparison(runs: list[CalibrationRun], path: Path) -> Path:
     right.set_ylabel("held-out CV(RMSE) [-] or RMSE [°C]")
     right.legend(fontsize=7)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

@@ -1,0 +1,200 @@
+"""Writing result files: JSON with one set of conversions, and atomic writes.
+
+Every file bpsflow writes for a user or for a later command goes through
+here, so that
+
+* a file is either the old one or the complete new one, never half written:
+  the content goes to a temporary file in the same folder (same file system)
+  which then replaces the target with :func:`os.replace` — an interrupted run
+  or a parallel reader never sees a truncated ``calibration.json``. (No
+  ``fsync``: this guards against interrupted processes, not power loss, and
+  costs nothing per file);
+* JSON means the same thing everywhere: numpy scalars and arrays, pandas
+  timestamps and paths are converted the same way in every module, and
+  non-finite floats (NaN, ±inf) are written as ``null``, because JSON has no
+  literal for them (Python's ``NaN`` token is not JSON, and strict readers
+  such as ``jq`` or a browser reject the file).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable, Mapping
+from pathlib import Path, PurePath
+from typing import IO, Any
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["jsonable", "write_csv", "write_json", "write_parquet", "write_text_atomic"]
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` as plain JSON types (dict, list, str, int, float, bool, None).
+
+    Conversions: mappings to dicts (keys to ``str``), tuples, lists, sets and
+    numpy arrays and pandas Series/Index to lists, numpy scalars to their
+    Python value, timestamps (pandas, numpy, ``datetime``), dates, times,
+    durations and paths to their ``str()`` text (``"2025-07-05 00:00:00"``),
+    ``pd.NA``/``NaT`` and non-finite floats (NaN, +inf, -inf) to ``None``.
+
+    Parameters
+    ----------
+    value : object
+        A nested structure of the types above.
+
+    Returns
+    -------
+    object
+        The same structure made only of JSON types.
+
+    Raises
+    ------
+    TypeError
+        ``value`` holds an object of another type (a silent ``str()`` would
+        hide a bug in the caller).
+    """
+    if value is None or isinstance(value, (str, bool)):
+        return value
+    if isinstance(value, (int, float)) and not isinstance(value, np.generic):
+        return _finite(value)
+    if isinstance(value, np.datetime64):
+        # .item() of a nanosecond datetime64 is a bare int: go through pandas
+        return jsonable(pd.Timestamp(value))
+    if isinstance(value, np.timedelta64):
+        return jsonable(pd.Timedelta(value))
+    if isinstance(value, np.generic):
+        # np.bool_, np.int64, np.float32, np.str_ ...: their Python value
+        return jsonable(value.item())
+    if isinstance(value, Mapping):
+        return {str(key): jsonable(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple, set, frozenset, np.ndarray, pd.Index, pd.Series)):
+        items = value.tolist() if isinstance(value, (np.ndarray, pd.Index, pd.Series)) else value
+        return [jsonable(item) for item in items]
+    if value is pd.NaT or value is pd.NA:
+        return None
+    if isinstance(value, (pd.Timestamp, pd.Timedelta, _dt.date, _dt.time, _dt.timedelta,
+                          PurePath)):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _finite(number: int | float) -> int | float | None:
+    if isinstance(number, float) and not math.isfinite(number):
+        return None
+    return number
+
+
+def write_json(path: str | os.PathLike, data: Any, *, sort_keys: bool = False) -> Path:
+    """Write ``data`` as indented JSON (2 spaces, UTF-8, final newline), atomically.
+
+    Values are converted by :func:`jsonable`; in particular NaN and ±inf are
+    written as ``null``.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to (re)place; its folder must exist.
+    data : object
+        Anything :func:`jsonable` converts.
+    sort_keys : bool, default False
+        Sort the keys of every object (stable diffs of files kept in git).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    text = json.dumps(jsonable(data), indent=2, sort_keys=sort_keys, allow_nan=False)
+    return write_text_atomic(path, text + "\n")
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (temporary file beside it, then ``os.replace``).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to (re)place; its folder must exist.
+    text : str
+        The whole content.
+    encoding : str, default "utf-8"
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    return _atomic(path, lambda handle: handle.write(text.encode(encoding)))
+
+
+def write_parquet(frame: pd.DataFrame, path: str | os.PathLike, **kwargs: Any) -> Path:
+    """Write ``frame`` to a Parquet file atomically.
+
+    Parameters
+    ----------
+    frame : DataFrame
+    path : str or PathLike
+        The file to (re)place; its folder must exist.
+    **kwargs
+        Passed to :meth:`pandas.DataFrame.to_parquet` (``index=False`` ...).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    return _atomic(path, lambda handle: frame.to_parquet(handle, **kwargs))
+
+
+def write_csv(frame: pd.DataFrame, path: str | os.PathLike, **kwargs: Any) -> Path:
+    """Write ``frame`` to a CSV file atomically.
+
+    Parameters
+    ----------
+    frame : DataFrame
+    path : str or PathLike
+        The file to (re)place; its folder must exist.
+    **kwargs
+        Passed to :meth:`pandas.DataFrame.to_csv` (``index=False``,
+        ``float_format`` ...).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    return _atomic(path, lambda handle: frame.to_csv(handle, **kwargs))
+
+
+def _atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> Path:
+    """Call ``write`` on a binary temporary file beside ``path``, then move it into place."""
+    path = Path(path)
+    descriptor, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    temporary = Path(name)
+    try:
+        with os.fdopen(descriptor, "wb") as handle:
+            write(handle)
+        # mkstemp makes the file 0600; a result file gets the usual permissions
+        os.chmod(temporary, 0o666 & ~_UMASK)
+        # atomic within one file system, hence the temporary file in the same folder
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _current_umask() -> int:
+    # The umask can only be read by setting it; done once, at import, rather than
+    # per write, where another thread could create a file under the wrong mask.
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
+
+
+_UMASK = _current_umask()
