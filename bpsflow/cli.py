@@ -141,20 +141,17 @@ def instances(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
               out: Optional[Path] = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
     """Write instance inputs (IDF per period, weather, boundary data) without running them."""
     from bpsflow.sampling import read_samples
-    from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
-    from bpsflow.simulation.energyplus.instances import write_instance
+    from bpsflow.simulation.backend import choose_backend
 
     cfg = _load(config, run_dir)
     samples = read_samples(cfg.run_dir.resolve())
-    binary = find_energyplus(cfg.model.energyplus)
-    if binary is None:
-        raise BpsflowError("writing IDF instances needs EnergyPlus's IDD; no EnergyPlus found")
+    chosen = choose_backend(cfg, err_console.print)
     out = out or cfg.run_dir.resolve() / "inspect"
     for i in instance:
         if i not in samples.index:
             raise BpsflowError(f"--instance {i}: not in samples.parquet (0..{len(samples) - 1})")
-        files = write_instance(cfg, samples.loc[i].to_dict(), out / f"{i:06d}", idd_path(binary))
-        console.print(f"instance {i}: " + ", ".join(str(p) for p in files.idfs.values()))
+        files = chosen.write_inputs(cfg, samples.loc[i].to_dict(), out / f"{i:06d}")
+        console.print(f"instance {i}: " + ", ".join(str(p) for p in files))
 
 
 @app.command()

@@ -11,6 +11,24 @@ ROOT = Path(__file__).resolve().parents[1]
 I600 = ROOT / "configs" / "i600.yaml"
 
 
+def pytest_collection_modifyitems(config, items):
+    """Skip ``energyplus`` tests, with the reason, when no EnergyPlus binary is found."""
+    from bpsflow.errors import BpsflowError
+    from bpsflow.simulation.energyplus.engine import find_energyplus
+
+    try:
+        binary = find_energyplus()
+    except BpsflowError:
+        binary = None
+    if binary is not None:
+        return
+    skip = pytest.mark.skip(reason="no EnergyPlus binary found (run 'make install', or set "
+                                   "BPSFLOW_ENERGYPLUS to an EnergyPlus 25.2 binary)")
+    for item in items:
+        if "energyplus" in item.keywords:
+            item.add_marker(skip)
+
+
 def i600_raw() -> dict:
     """The shipped I600 config as a dict, with absolute paths so it can be written anywhere."""
     raw = yaml.safe_load(I600.read_text())

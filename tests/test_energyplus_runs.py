@@ -9,9 +9,11 @@ from typer.testing import CliRunner
 
 from bpsflow.cli import app
 from bpsflow.config import load_config
-from bpsflow.energyplus import find_energyplus, idd_path
-from bpsflow.instances import open_idf, write_instance
-from bpsflow.runner import read_manifest, read_results, run
+from bpsflow.simulation.backend import get_backend
+from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
+from bpsflow.simulation.energyplus.instances import open_idf, write_instance
+from bpsflow.simulation.ensemble import run_ensemble
+from bpsflow.simulation.rundir import read_manifest, read_results
 from bpsflow.sampling import read_samples
 
 from conftest import short_raw, write_config
@@ -127,10 +129,12 @@ def test_broken_instance_is_recorded_and_others_complete(tmp_path):
     assert manifest.loc[[0, 2], "status"].tolist() == ["ok", "ok"]
     assert set(read_results(config.run_dir)["instance"]) == {0, 2}
     # a second run does not retry the failure unless asked, and then runs only it
-    summary = run(config, samples, jobs=1, show_progress=False)
+    energyplus = get_backend("energyplus")
+    summary = run_ensemble(config, samples, energyplus, jobs=1, show_progress=False)
     assert (summary.ran, summary.failed) == (0, 1)
     samples.loc[1, "glazing_solar_transmittance"] = 1.0
-    summary = run(config, samples, jobs=1, retry_failed=True, show_progress=False)
+    summary = run_ensemble(config, samples, energyplus, jobs=1, retry_failed=True,
+                           show_progress=False)
     assert (summary.ran, summary.ok, summary.failed) == (1, 3, 0)
     assert set(read_results(config.run_dir)["instance"]) == {0, 1, 2}
 

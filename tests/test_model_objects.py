@@ -19,7 +19,7 @@ import yaml
 
 from bpsflow.config import load_config
 from bpsflow.errors import BpsflowError
-from bpsflow.surrogate import simulate_instances
+from bpsflow.surrogate.run import simulate_instances
 from bpsflow.surrogate.cell import build_cell, wind_factor, zone_centroid_height
 from bpsflow.surrogate.forcing import constant_forcing, period_forcing
 from bpsflow.simulation.idf import model_objects, model_text, parse_idf_text
@@ -378,8 +378,8 @@ def test_ar1_noise_restarts_at_gaps_and_zero_keeps_white_noise():
 
 @pytest.mark.energyplus
 def test_snippet_fields_are_targetable_on_both_backends(tmp_path):
-    from bpsflow.energyplus import find_energyplus, idd_path
-    from bpsflow.instances import check_model, open_idf, write_instance
+    from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
+    from bpsflow.simulation.energyplus.instances import check_model, open_idf, write_instance
 
     folder = tmp_path / "ext"
     snippet = copy_snippet("internal_gain_schedule.idf", folder)
@@ -392,7 +392,7 @@ def test_snippet_fields_are_targetable_on_both_backends(tmp_path):
                                        "DiagnosisScheduledGain", "Fraction Radiant"))
     config = load_config(write_config(tmp_path, raw))
     idd = idd_path(find_energyplus())
-    targets = check_model(config, idd)
+    targets = check_model(config, idd).targets
     assert [r.object_name for r in targets.idf_fields["scheduled_gain_w"]] == [
         "DiagnosisScheduledGain"]
     sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
@@ -426,8 +426,8 @@ def test_energyplus_and_surrogate_agree_on_the_extensions(tmp_path):
     hours ending 20:00–22:00). The change each causes in the hourly heating
     power must agree between the backends.
     """
-    from bpsflow.energyplus import find_energyplus, idd_path
-    from bpsflow.runner import INSTANCE_OUTPUTS, instance_dir, run_instance
+    from bpsflow.simulation.energyplus import run_instance
+    from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
 
     folder = tmp_path / "ext"
     wind = copy_snippet("infiltration_wind.idf", folder)
@@ -456,9 +456,9 @@ def test_energyplus_and_surrogate_agree_on_the_extensions(tmp_path):
     idd = idd_path(binary)
     energyplus = {}
     for label, change in enumerate(changes):
-        record = run_instance(config, label, {**nominal, **change}, tmp_path / "run", binary, idd)
+        record, frame = run_instance(config, label, {**nominal, **change}, tmp_path / "run",
+                                     binary, idd)
         assert record.status == "ok", record.error
-        frame = pd.read_parquet(instance_dir(tmp_path / "run", label) / INSTANCE_OUTPUTS)
         energyplus[label] = frame.set_index("timestamp")["value"]
     energyplus = pd.DataFrame(energyplus)
     samples = pd.DataFrame([{**nominal, **c} for c in changes],

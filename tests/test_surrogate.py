@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from bpsflow.config import load_config
-from bpsflow.surrogate import ignored_targets, simulate_instances
+from bpsflow.surrogate.run import ignored_targets, simulate_instances
 from bpsflow.surrogate.cell import build_cell
 from bpsflow.surrogate.forcing import constant_forcing
 from bpsflow.simulation.idf import polygon_area, read_idf
@@ -210,23 +210,26 @@ def test_ignored_targets_are_named(config):
 
 
 def test_auto_backend_falls_back_and_runs(tmp_path, monkeypatch):
-    import bpsflow.runner as runner
+    import bpsflow.simulation.energyplus as energyplus_backend
     from bpsflow.boundary import draw_sequences, period_hours, write_sequences
     from bpsflow.sampling import sample, write_design
+    from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.ensemble import run_ensemble
 
     raw = short_raw(samples=4)
     raw["model"]["backend"] = "auto"
     config = load_config(write_config(tmp_path, raw))
-    monkeypatch.setattr(runner, "find_energyplus", lambda override=None: None)
+    monkeypatch.setattr(energyplus_backend, "find_energyplus", lambda override=None: None)
     messages: list[str] = []
-    assert runner.choose_backend(config, announce=messages.append) == "surrogate"
+    chosen = choose_backend(config, announce=messages.append)
+    assert chosen.name == "surrogate"
     assert any("falling back" in m and "surrogate" in m for m in messages)
 
     run_dir = config.run_dir.resolve()
     design = sample(config)
     write_design(design, run_dir)
     write_sequences(draw_sequences(config.model.boundary, period_hours(config)), run_dir)
-    summary = runner.run(config, design.values, show_progress=False)
+    summary = run_ensemble(config, design.values, chosen, show_progress=False)
     assert summary.backend == "surrogate" and summary.ok == 4 and summary.failed == 0
     results = pd.read_parquet(run_dir / "results.parquet")
     manifest = pd.read_parquet(run_dir / "manifest.parquet")

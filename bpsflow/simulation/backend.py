@@ -33,10 +33,11 @@ from bpsflow.simulation.rundir import InstanceRecord
 if TYPE_CHECKING:
     from bpsflow.config import Config
 
-#: Backend name -> the module that defines it (imported on first use, so a
-#: command that runs one backend does not import the other).
-BACKENDS = {"energyplus": "bpsflow.simulation.energyplus",
-            "surrogate": "bpsflow.simulation.surrogate"}
+#: Backend name -> the module that defines it as ``BACKEND`` (imported on first
+#: use, so a command that runs one backend does not import the other), or a
+#: backend object registered with :func:`register_backend`.
+BACKENDS: dict[str, object] = {"energyplus": "bpsflow.simulation.energyplus",
+                               "surrogate": "bpsflow.simulation.surrogate"}
 
 
 @dataclass
@@ -85,13 +86,32 @@ class Backend(Protocol):
         """Simulate ``samples`` (index = instance) with files under ``workdir``."""
         ...
 
+    def write_inputs(self, config: Config, sample: dict[str, float], directory: Path
+                     ) -> list[Path]:
+        """Write one instance's input files into ``directory`` (to inspect them), and list them."""
+        ...
+
 
 def get_backend(name: str) -> Backend:
     """The backend called ``name`` (``energyplus`` or ``surrogate``)."""
     if name not in BACKENDS:
         raise BpsflowError(f"backend: expected one of {', '.join(BACKENDS)} or auto, got "
                            f"'{name}'")
-    return importlib.import_module(BACKENDS[name]).BACKEND
+    entry = BACKENDS[name]
+    if isinstance(entry, str):
+        return importlib.import_module(entry).BACKEND
+    return entry  # type: ignore[return-value]
+
+
+def register_backend(backend: Backend) -> None:
+    """Make ``backend`` available by its name to :func:`get_backend` (e.g. a test double).
+
+    The workflows (calibration, diagnosis, sensitivity) take a backend name, so
+    a cheap backend registered here exercises them without a simulation engine.
+    """
+    if not isinstance(backend, Backend):
+        raise TypeError(f"{backend!r} does not implement the Backend protocol")
+    BACKENDS[backend.name] = backend
 
 
 def choose_backend(config: Config, announce: Callable[[str], object] | None = None) -> Backend:

@@ -35,7 +35,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
 
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation import rundir
-from bpsflow.simulation.backend import Backend, Batch, get_backend
+from bpsflow.simulation.backend import Backend, Batch
 from bpsflow.simulation.executor import Executor, local_executor
 from bpsflow.simulation.rundir import InstanceRecord
 
@@ -66,10 +66,10 @@ def _chunks(labels: list[int], backend: Backend, jobs: int) -> list[list[int]]:
     return [labels[i:i + per_chunk] for i in range(0, len(labels), per_chunk)]
 
 
-def _run_chunk(backend_name: str, config: Config, chunk: pd.DataFrame, run_dir: Path,
+def _run_chunk(backend: Backend, config: Config, chunk: pd.DataFrame, run_dir: Path,
                keep_inputs: bool) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
     """Simulate one chunk in a worker and write each finished instance's outputs there."""
-    backend = get_backend(backend_name)
+    backend_name = backend.name
     started = time.perf_counter()
     try:
         batch = backend.simulate(config, chunk, run_dir, keep_inputs=keep_inputs)
@@ -156,7 +156,7 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
             with Progress(*columns, console=console,
                           disable=not show_progress or not todo) as progress:
                 task = progress.add_task(label or backend.name, total=len(todo), failed=0)
-                tasks = ((backend.name, config, samples.loc[chunk], run_dir, keep_inputs)
+                tasks = ((backend, config, samples.loc[chunk], run_dir, keep_inputs)
                          for chunk in chunks)
                 since_write = 0
                 for chunk_records, outputs in executor.map_unordered(_run_chunk, tasks):

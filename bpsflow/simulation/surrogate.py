@@ -65,5 +65,10 @@ class SurrogateBackend:
             tidy = tidy[~tidy["instance"].isin(bad)]
         return Batch(tidy=tidy[RESULT_COLUMNS], records=records)
 
+    def write_inputs(self, config: Config, sample: dict[str, float], directory: Path
+                     ) -> list[Path]:
+        raise BpsflowError("the surrogate reads the model and the samples directly; it writes "
+                           "no instance input files (EnergyPlus does: --backend energyplus)")
+
 
 BACKEND = SurrogateBackend()

@@ -162,5 +162,12 @@ class EnergyPlusBackend:
             pd.DataFrame(columns=RESULT_COLUMNS)
         return Batch(tidy=tidy_all, records=records)
 
+    def write_inputs(self, config: Config, sample: dict[str, float], directory: Path
+                     ) -> list[Path]:
+        files = write_instance(config, sample, Path(directory), idd_path(self.binary(config)))
+        extra = [p for p in (files.weather, files.boundary) if p is not None
+                 and Path(p).parent == Path(directory)]
+        return [*files.idfs.values(), *extra]
+
 
 BACKEND = EnergyPlusBackend()
