@@ -161,3 +161,26 @@ def test_synth_writes_noisy_measurements_of_the_truth(tmp_path):
     bad.write_text("values: {no_such_parameter: 1}\n")
     result = runner.invoke(app, ["synth", str(path), "--truth", str(bad)])
     assert result.exit_code == 2 and "values.no_such_parameter" in result.output
+
+
+@pytest.mark.energyplus
+def test_time_step_outputs_average_to_the_hourly_values(tmp_path):
+    """A ``frequency: timestep`` output has steps_per_hour values per hour, ending on the step."""
+    from bpsflow.simulation.ensemble import simulate_samples
+
+    raw = short_raw(samples=2)
+    raw["outputs"]["air_steps_c"] = {"variable": "Zone Mean Air Temperature",
+                                     "key": raw["outputs"]["zone_air_temperature_c"]["key"],
+                                     "unit": "C", "frequency": "timestep"}
+    raw["model"]["tests"][1]["outputs"].append("air_steps_c")
+    config = load_config(write_config(tmp_path, raw))
+    nominal = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    tidy = simulate_samples(config, pd.DataFrame([nominal], index=pd.Index([0], name="instance")),
+                            tmp_path / "work", get_backend("energyplus"))
+    steps = tidy[tidy["output"] == "air_steps_c"].set_index("timestamp")["value"]
+    hourly = tidy[tidy["output"] == "zone_air_temperature_c"].set_index("timestamp")["value"]
+    per_hour = config.model.timesteps_per_hour
+    assert len(steps) == len(hourly) * per_hour and steps.index.is_monotonic_increasing
+    assert steps.index[0] == hourly.index[0] - pd.Timedelta(minutes=60 - 60 // per_hour)
+    means = steps.groupby(steps.index.ceil("h")).mean()
+    np.testing.assert_allclose(means.loc[hourly.index].to_numpy(), hourly.to_numpy(), atol=1e-9)

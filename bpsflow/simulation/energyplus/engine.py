@@ -169,12 +169,8 @@ def read_outputs(sql_path: Path, year: int) -> pd.DataFrame:
 def _interval_end(days: pd.Series, hour: pd.Series, minute: pd.Series) -> pd.Series:
     """Interval-ending timestamps from the SQLite ``Time`` table's hour and minute.
 
-    Hourly rows carry ``Hour`` 1..24 with ``Minute`` 0 (or 60); time-step rows
-    carry the hour the step lies in (1..24) and the minute the step ends at
-    (e.g. 10..60 with six steps per hour).
+    EnergyPlus stamps the end of each interval: hourly rows carry ``Hour``
+    1..24 (``Minute`` 0), time-step rows the hour and minute the step ends at
+    (00:10 is ``Hour`` 0, ``Minute`` 10; 01:00 is ``Hour`` 1, ``Minute`` 0).
     """
-    minutes = minute.astype(int)
-    whole_hour = (minutes == 0) | (minutes == 60)
-    offset = pd.to_timedelta(hour.where(whole_hour, hour - 1), unit="h") \
-        + pd.to_timedelta(minutes.where(~whole_hour, 0), unit="min")
-    return days + offset
+    return days + pd.to_timedelta(hour, unit="h") + pd.to_timedelta(minute % 60, unit="min")
