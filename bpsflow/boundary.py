@@ -24,6 +24,7 @@ from scipy import stats
 from bpsflow.config import Boundary, Config, period_dates
 from bpsflow.errors import BpsflowError
 from bpsflow.tables import read_table
+from bpsflow.yearhours import NON_LEAP_ROWS, day_rows
 
 SEQUENCES_FILE = "boundary_sequences.npz"
 
@@ -43,15 +44,39 @@ def read_boundary_file(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     return frame
 
 
-def period_hours(config: Config) -> np.ndarray:
-    """0-based hour-of-year rows covered by the config's run periods."""
+def period_hours(config: Config, n_rows: int | None = None) -> np.ndarray:
+    """0-based rows, in an hourly one-year file, of the hours of the config's run periods.
+
+    Parameters
+    ----------
+    config : Config
+    n_rows : {8760, 8784}, optional
+        Rows of the file the result indexes (:mod:`bpsflow.yearhours`: in a
+        leap ``model.year`` an 8760-row file has no 29 February). Default:
+        the measured boundary file's, whose rows the boundary sequences
+        hold, or 8760 without one; a caller indexing another file (the EPW)
+        passes that file's length.
+
+    Returns
+    -------
+    ndarray of int
+        Sorted, unique rows.
+    """
+    if n_rows is None:
+        n_rows = NON_LEAP_ROWS if config.model.boundary is None else \
+            boundary_rows(config.model.boundary)
     hours: list[np.ndarray] = []
     for period in config.model.periods:
         first, last = period_dates(period, config.model.year)
-        start = (first.timetuple().tm_yday - 1) * 24
-        stop = last.timetuple().tm_yday * 24
-        hours.append(np.arange(start, stop))
+        starts = day_rows(first, (last - first).days + 1, n_rows)
+        hours.append((starts[:, None] + np.arange(24)[None, :]).ravel())
     return np.unique(np.concatenate(hours))
+
+
+def boundary_rows(boundary: Boundary) -> int:
+    """Rows (8760 or 8784) of the measured boundary temperature file."""
+    columns = tuple(boundary.surfaces[s].column for s in boundary.surfaces)
+    return len(read_boundary_file(boundary.file, columns))
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.errors import BpsflowError
+from bpsflow.yearhours import hour_rows
 
 #: 0-based column of each quantity in an EPW data row (EnergyPlus Auxiliary Programs, ch. 2).
 EPW_COLUMNS = {
@@ -81,10 +82,9 @@ def read_epw(path: Path) -> EpwFile:
 def epw_rows(hour_starts: pd.DatetimeIndex | pd.Series, n_rows: int = 8760) -> np.ndarray:
     """0-based EPW data row of each hour, mapped by month, day and hour.
 
-    The EPW's own year is ignored (a TMY file mixes years): row ``h`` holds
-    the hour ``h .. h+1`` after 1 January 00:00 of the weather year. In an
-    8760-row file 29 February reads 28 February's rows; in an 8784-row (leap)
-    file a non-leap date after February skips the 29 February rows.
+    The rule of :func:`bpsflow.yearhours.hour_rows` (the EPW's own year is
+    ignored; an 8760-row file reads 28 February for 29 February, an 8784-row
+    file skips 29 February in a non-leap year).
 
     Parameters
     ----------
@@ -98,15 +98,7 @@ def epw_rows(hour_starts: pd.DatetimeIndex | pd.Series, n_rows: int = 8760) -> n
     -------
     ndarray of int
     """
-    starts = pd.DatetimeIndex(hour_starts)
-    month, day_of_month = starts.month.to_numpy(), starts.day.to_numpy()
-    leap = np.asarray(starts.is_leap_year)
-    day = starts.day_of_year.to_numpy() - 1
-    if n_rows == 8784:
-        day = day + (~leap & (month > 2))
-    else:
-        day = day - (leap & ((month > 2) | ((month == 2) & (day_of_month == 29))))
-    return (day * 24 + starts.hour.to_numpy()).astype(int)
+    return hour_rows(hour_starts, n_rows)
 
 
 def _is_number(text: str) -> bool:

@@ -25,14 +25,10 @@ from bpsflow.simulation.idf import model_objects
 from bpsflow.surrogate.solar import (SHADING_DAYS, beam_floor_fraction, facade_irradiance,
                                      sun_positions)
 from bpsflow.weather import perturb, read_epw
+from bpsflow.yearhours import day_rows
 
 SIGMA = 5.670374419e-8
 _IR_COLUMN = 12  # horizontal infrared radiation intensity, Wh/m²
-
-
-def hour_of_year(day: date) -> int:
-    """0-based hour row of the day's first hour in a non-leap weather year."""
-    return (date(2001, day.month, day.day) - date(2001, 1, 1)).days * 24
 
 
 @dataclass
@@ -144,11 +140,15 @@ def period_forcing(config: Config, cell: Cell, period: Period, samples: pd.DataF
     steps = days * 24 * tph
     epw = read_epw(config.model.weather)
     n_rows = epw.n_hours
-    row0 = hour_of_year(first)
-    # Position of each step end in hours since the start of the weather year.
-    ends = row0 + np.arange(1, steps + 1) / tph
-    lo = max(row0 - 2, 0)
-    hi = min(row0 + days * 24 + 2, n_rows)
+    # Position of each step end in hours since the start of the weather file. Days
+    # are found in the file one by one (bpsflow.yearhours): across the end of
+    # February a leap model.year repeats or skips a day of the file.
+    day_starts = day_rows(first, days, n_rows)
+    row0 = int(day_starts[0])
+    jumps = day_starts - (row0 + 24 * np.arange(days))   # 0 unless a day repeats or is skipped
+    ends = row0 + np.arange(1, steps + 1) / tph + np.repeat(jumps, 24 * tph)
+    lo = max(int(day_starts.min()) - 2, 0)
+    hi = min(int(day_starts.max()) + 24 + 2, n_rows)
     window = slice(lo, hi)
     temperature_pos = ends - 1 - lo   # hour-ending values: row r sits at hour r + 1
     solar_pos = ends - 0.5 - lo       # hourly integrals: row r sits at hour r + 0.5
@@ -184,7 +184,7 @@ def period_forcing(config: Config, cell: Cell, period: Period, samples: pd.DataF
     # is below the horizon, whatever the interpolated weather-file values say.
     sun_up = zenith < 90.0
 
-    boundary = _boundary(config, cell, samples, row0, days, tph, run_dir)
+    boundary = _boundary(config, cell, samples, first, days, tph, run_dir)
     heating, cooling = _period_setpoints(config, period, first, days, tph)
     return PeriodForcing(
         period=period.name, first=first, days=days, steps_per_hour=tph, t_out=t_out,
@@ -218,7 +218,7 @@ def shading_days(config: Config) -> int | None:
     return max(1, int(shadow.number("Shading Calculation Update Frequency", SHADING_DAYS)))
 
 
-def _boundary(config: Config, cell: Cell, samples: pd.DataFrame, row0: int, days: int,
+def _boundary(config: Config, cell: Cell, samples: pd.DataFrame, first: date, days: int,
               tph: int, run_dir) -> list[np.ndarray | None]:
     boundary = config.model.boundary
     needed = {k for surface in cell.opaque for k in surface.boundary_weights}
@@ -226,7 +226,8 @@ def _boundary(config: Config, cell: Cell, samples: pd.DataFrame, row0: int, days
         return [None] * len(cell.opaque)
     columns = tuple(boundary.surfaces[s].column for s in boundary.surfaces)
     table = read_boundary_file(boundary.file, columns)
-    rows = row0 + np.arange(days * 24)
+    # the boundary file's own rows (its length may differ from the weather file's)
+    rows = (day_rows(first, days, len(table))[:, None] + np.arange(24)[None, :]).ravel()
     selection = boundary_selection(config, samples)
     sequences = None
     if selection:

@@ -15,9 +15,11 @@ never a holiday, design day or custom day (``For: Holidays`` and the like
 apply to no day of a run period).
 
 ``Schedule:File`` rows count hours from 1 January (row ``r`` covers the
-hour ending at ``r + 1`` h), on a 365-day year as EnergyPlus maps an
-8760-hour file; a relative file name was made absolute against the file
-declaring the schedule by :func:`bpsflow.simulation.idf.model_objects`. The run
+hour ending at ``r + 1`` h), each day found by its month and day as
+EnergyPlus does (:mod:`bpsflow.yearhours`: an 8760-hour file has no
+29 February, an 8784-hour file has one); a relative file name was made
+absolute against the file declaring the schedule by
+:func:`bpsflow.simulation.idf.model_objects`. The run
 periods use no daylight saving time, so "Adjust Schedule for Daylight
 Savings" changes nothing.
 """
@@ -35,6 +37,7 @@ import pandas as pd
 
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import IdfModel, IdfObject
+from bpsflow.yearhours import LEAP_ROWS, NON_LEAP_ROWS, day_rows
 
 #: Day types of a Schedule:Compact ``For:`` field that apply to a weekday (Monday = 0).
 _WEEKDAY_NAMES = ("MONDAY", "TUESDAY", "WEDNESDAY", "THURSDAY", "FRIDAY", "SATURDAY", "SUNDAY")
@@ -122,9 +125,10 @@ class Schedule:
             raise BpsflowError(f"{self.where}: {self.file} has {len(column)} value(s) in column "
                                f"{self.column} after {self.skip_rows} skipped row(s); expected "
                                f"{items} ({self.hours_of_data} h at {self.minutes_per_item} min)")
-        day_of_year = (date(2001, first.month, first.day) - date(2001, 1, 1)).days
-        start_minute = day_of_year * _MINUTES_PER_DAY
-        ends = start_minute + np.arange(1, days * 24 * steps_per_hour + 1) * (60 // steps_per_hour)
+        # EnergyPlus gives a file of fewer than 8784 hours no 29 February
+        calendar = LEAP_ROWS if self.hours_of_data >= LEAP_ROWS else NON_LEAP_ROWS
+        day_start = day_rows(first, days, calendar) * 60   # minutes since the file's start
+        ends = (day_start[:, None] + step_end_minutes(steps_per_hour)[None, :]).ravel()
         # The item holding each step's end minute: items cover (k m, (k + 1) m].
         index = -(-ends // self.minutes_per_item) - 1
         if index.max() >= items:
