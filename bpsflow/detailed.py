@@ -32,6 +32,38 @@ Files written by ``bpsflow synth --detailed``: ``detailed.csv``,
 ``sensor_calibration.csv`` and ``detailed.json`` (metadata a refinement may
 use); the true values behind them go to the ``detailed`` block of
 ``truth.json``.
+
+Where the sensors are (:func:`sensor_surfaces`) is read from the model's
+geometry; no name of a shipped model is written here. The zone is the config's
+``detailed.zone`` or the model's only zone. Each class is chosen among the
+zone's ``BuildingSurface:Detailed`` of its Surface Type (wall: Wall; ceiling:
+Ceiling or Roof; floor: Floor):
+
+* ceiling, floor: the largest, then the first in the file;
+* wall, ranked by
+  (1) no window or door in it (glazing puts sun patches and frame losses
+  beside the sensors);
+  (2) most nearly perpendicular to the window's facade, i.e. the smallest
+  |n_wall · n_window| (a side wall: sunlight through the window reaches it only
+  at grazing angles, which keeps the radiation term of eq. 15 small);
+  (3) the larger area; (4) the first clockwise from north (the smaller
+  azimuth of its outward normal); (5) file order;
+* window: the zone's exterior glazing (``FenestrationSurface:Detailed`` of
+  type Window or GlassDoor on a surface whose outside boundary is Outdoors)
+  with the largest glazed area (area × multiplier), then the first in the
+  file; its facade is the surface it is on.
+
+Outward normals are Newell's vector area of the vertices, reversed for
+``GlobalGeometryRules`` Clockwise entry. Azimuths are clockwise from true
+north: with Relative coordinates (EnergyPlus's default) Building North Axis and
+the zone's Direction of Relative North are added; with World coordinates
+EnergyPlus ignores both, and so does this. On the shipped test cell the rules
+give the surfaces the sensors have always been on: rule (1) drops the south
+wall, rule (2) the north wall, the east and west walls tie on (3), and rule
+(4) — a convention, kept because the test cell's sensors were put on the east
+wall — takes east (90°) before west (270°). Any of them can be named instead:
+``detailed.wall``, ``detailed.ceiling``, ``detailed.floor``, ``detailed.window``
+(checked against the zone's surfaces of that kind).
 """
 
 from __future__ import annotations
@@ -39,16 +71,17 @@ from __future__ import annotations
 import json
 import math
 import tempfile
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import timedelta
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, OutputVariable, Test, period_dates
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.idf import polygon_area
 from bpsflow.tables import read_table
 
 DETAILED_FILE = "detailed.csv"
@@ -71,10 +104,15 @@ CALIBRATION_READINGS = 200
 CALIBRATION_PLATEAUS = 20
 CALIBRATION_RANGE_C = (15.0, 35.0)
 
-#: Surface class -> the IDF surface its detailed sensors are on.
-SURFACE_CLASSES = {"wall": "EastWall", "ceiling": "Ceiling", "floor": "Floor"}
-WINDOW_SURFACE = "SouthWindow"
-SOUTH_FACADE = "SouthWall"
+#: Surface classes with their own sensors and convection correlation (seed Table 3.4).
+SURFACE_CLASSES = ("wall", "ceiling", "floor")
+#: Surface class -> the ``Surface Type`` values of BuildingSurface:Detailed it is chosen from.
+CLASS_SURFACE_TYPES = {"wall": ("WALL",), "ceiling": ("CEILING", "ROOF"), "floor": ("FLOOR",)}
+#: ``Surface Type`` values of FenestrationSurface:Detailed that are glazing.
+WINDOW_TYPES = ("WINDOW", "GLASSDOOR")
+#: Config keys (``detailed.<key>``) that name the sensors' zone, surfaces and window.
+SETTING_KEYS = ("zone", *SURFACE_CLASSES, "window")
+#: EnergyPlus's key of site (weather) variables.
 SITE_KEY = "Environment"
 
 #: ``<class>_<suffix>`` output -> EnergyPlus variable at the surface's inside face, unit.
@@ -88,19 +126,20 @@ SURFACE_VARIABLES = {
         "Surface Inside Face Net Surface Thermal Radiation Heat Gain Rate per Area", "W/m2"),
     "solar_radiation_w_m2": ("Surface Inside Face Solar Radiation Heat Gain Rate per Area", "W/m2"),
 }
-#: Other true quantities: output -> (EnergyPlus variable, key, unit).
+#: Other true quantities: output -> (EnergyPlus variable, what it is of, unit); "window" and
+#: "facade" are the :func:`sensor_surfaces` window and its host surface, "site" the weather.
 OTHER_OUTPUTS = {
-    "window_transmitted_w": ("Surface Window Transmitted Solar Radiation Rate", WINDOW_SURFACE, "W"),
+    "window_transmitted_w": ("Surface Window Transmitted Solar Radiation Rate", "window", "W"),
     "window_incident_w_m2": ("Surface Outside Face Incident Solar Radiation Rate per Area",
-                             WINDOW_SURFACE, "W/m2"),
+                             "window", "W/m2"),
     "south_ground_reflected_w_m2": (
         "Surface Outside Face Incident Ground Diffuse Solar Radiation Rate per Area",
-        SOUTH_FACADE, "W/m2"),
+        "facade", "W/m2"),
     "site_ground_reflected_w_m2": ("Site Ground Reflected Solar Radiation Rate per Area",
-                                   SITE_KEY, "W/m2"),
-    "site_direct_w_m2": ("Site Direct Solar Radiation Rate per Area", SITE_KEY, "W/m2"),
-    "site_diffuse_w_m2": ("Site Diffuse Solar Radiation Rate per Area", SITE_KEY, "W/m2"),
-    "site_solar_altitude_deg": ("Site Solar Altitude Angle", SITE_KEY, "deg"),
+                                   "site", "W/m2"),
+    "site_direct_w_m2": ("Site Direct Solar Radiation Rate per Area", "site", "W/m2"),
+    "site_diffuse_w_m2": ("Site Diffuse Solar Radiation Rate per Area", "site", "W/m2"),
+    "site_solar_altitude_deg": ("Site Solar Altitude Angle", "site", "deg"),
 }
 
 #: Per-class columns of ``detailed.csv``.
@@ -144,25 +183,34 @@ def detailed_outputs(config: Config) -> dict[str, OutputVariable]:
     -------
     dict
         Output name -> EnergyPlus variable and key (``<class>_<quantity>`` for
-        wall/ceiling/floor, window, south facade and site quantities).
+        wall/ceiling/floor, window, window facade and site quantities); the
+        keys are the :func:`sensor_surfaces` of the model.
 
     Raises
     ------
     BpsflowError
         When the config already has an output of one of these names that
-        reads another variable or key.
+        reads another variable or key, or the sensors' surfaces cannot be
+        chosen (see :func:`select_sensor_surfaces`).
     """
+    sensors = sensor_surfaces(config)
+    window, facade = sensors.glazing(config.source)
+    keys = {"window": window, "facade": facade, "site": SITE_KEY}
     wanted: dict[str, OutputVariable] = {}
-    for surface_class, surface in SURFACE_CLASSES.items():
+    for surface_class, surface in sensors.surfaces.items():
         for suffix, (variable, unit) in SURFACE_VARIABLES.items():
             wanted[f"{surface_class}_{suffix}"] = OutputVariable(variable=variable, key=surface,
                                                                  unit=unit)
-    for name, (variable, key, unit) in OTHER_OUTPUTS.items():
-        wanted[name] = OutputVariable(variable=variable, key=key, unit=unit)
+    for name, (variable, of, unit) in OTHER_OUTPUTS.items():
+        wanted[name] = OutputVariable(variable=variable, key=keys[of], unit=unit)
     for name, spec in wanted.items():
         have = config.outputs.get(name)
-        if have is not None and (have.variable.upper() != spec.variable.upper()
-                                 or have.key.upper() != spec.key.upper() or have.scale != 1.0):
+        # A meter (no variable or key) or another reporting frequency under the name clashes too.
+        if have is not None and ((have.variable or "").upper() != spec.variable.upper()
+                                 or (have.key or "").upper() != spec.key.upper()
+                                 or have.scale != 1.0
+                                 or getattr(have, "frequency", None) != getattr(spec, "frequency",
+                                                                                None)):
             raise BpsflowError(f"outputs.{name}: the detailed measurements use this name for "
                                f"'{spec.variable}' of '{spec.key}'; rename the config's output",
                                source=config.source)
@@ -222,17 +270,321 @@ def _z_range(vertices) -> tuple[float, float]:
     return min(heights), max(heights)
 
 
-def _tilt_deg(vertices) -> float:
-    """Tilt of a planar polygon from horizontal (0 facing up, 90 vertical), degrees."""
+def newell_normal(vertices: Sequence[Sequence[float]]) -> np.ndarray:
+    """Newell's vector area of a planar polygon: Σ v_k × v_(k+1).
+
+    Parameters
+    ----------
+    vertices : sequence of (x, y, z)
+        The polygon's vertices in order, m.
+
+    Returns
+    -------
+    ndarray
+        Normal to the polygon's plane, of length twice its area (m²), pointing to
+        the side from which the vertices run counterclockwise.
+    """
+    vertices = list(vertices)
     normal = np.zeros(3)
-    for a, b in zip(vertices, vertices[1:] + vertices[:1]):
+    for a, b in zip(vertices, vertices[1:] + vertices[:1], strict=True):
         normal += np.cross(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    return normal
+
+
+def outward_normal(vertices: Sequence[Sequence[float]], clockwise: bool = False) -> np.ndarray:
+    """Unit outward normal of a surface (zero for a degenerate polygon).
+
+    Parameters
+    ----------
+    vertices : sequence of (x, y, z)
+        The surface's vertices as the IDF lists them, m.
+    clockwise : bool
+        ``GlobalGeometryRules`` Vertex Entry Direction is Clockwise (EnergyPlus
+        lists vertices counterclockwise seen from outside unless it says so).
+    """
+    normal = newell_normal(vertices)
+    if clockwise:
+        normal = -normal
+    length = float(np.linalg.norm(normal))
+    return normal / length if length else normal
+
+
+def azimuth_deg(direction: Sequence[float], north_axis_deg: float = 0.0) -> float:
+    """Azimuth of a direction's horizontal part, clockwise from true north, degrees in [0, 360).
+
+    Parameters
+    ----------
+    direction : (x, y, z)
+        In model coordinates: x east and y north of the building.
+    north_axis_deg : float
+        Clockwise angle from true north to the building's y axis, degrees
+        (:func:`north_axis_deg`).
+    """
+    return (math.degrees(math.atan2(direction[0], direction[1])) + north_axis_deg) % 360.0
+
+
+def _tilt_deg(vertices, clockwise: bool = False) -> float:
+    """Tilt of a surface's outward normal from vertical up (0 facing up, 90 vertical), degrees."""
+    normal = newell_normal(vertices)
+    if clockwise:
+        normal = -normal
     length = float(np.linalg.norm(normal))
     return math.degrees(math.acos(max(-1.0, min(1.0, normal[2] / length)))) if length else 90.0
 
 
+def geometry_rules(idf) -> tuple[bool, bool]:
+    """How the model's vertices are written: (clockwise entry, world coordinates).
+
+    From ``GlobalGeometryRules``; without one, EnergyPlus's defaults
+    (counterclockwise, relative coordinates).
+    """
+    rules = idf.of_type("GLOBALGEOMETRYRULES")
+    # The IDD-free reader has no field table for this object: fields by IDD position
+    # (Starting Vertex Position, Vertex Entry Direction, Coordinate System).
+    fields = [f.strip().upper() for f in rules[0].fields] if rules else []
+    direction = fields[1] if len(fields) > 1 else ""
+    system = fields[2] if len(fields) > 2 else ""
+    return direction == "CLOCKWISE", system in ("WORLD", "ABSOLUTE")
+
+
+def north_axis_deg(idf, zone: str) -> float:
+    """Clockwise angle from true north to the y axis of a zone's vertices, degrees.
+
+    Building North Axis plus the zone's Direction of Relative North for
+    relative coordinates; 0 for world coordinates, where EnergyPlus ignores
+    both ("World Coordinate System selected. Any non-zero Building/Zone North
+    Axes ... are ignored").
+    """
+    if geometry_rules(idf)[1]:
+        return 0.0
+    building = idf.of_type("BUILDING")
+    angle = building[0].number("North Axis", 0.0) if building else 0.0
+    for obj in idf.of_type("ZONE"):
+        # No field table for Zone either: Direction of Relative North is its second field.
+        text = obj.fields[1].strip() if len(obj.fields) > 1 else ""
+        if obj.name.upper() == zone.upper() and text:
+            try:
+                angle += float(text)
+            except ValueError:
+                raise BpsflowError(f"Zone '{obj.name}': Direction of Relative North holds "
+                                   f"'{text}', not a number", source=idf.path) from None
+    return angle
+
+
+# Where the sensors are ---------------------------------------------------------
+
+#: How each choice was made when the config did not name it (``SensorSurfaces.chosen_by``).
+RULES = {
+    "zone": "the model's only zone",
+    "wall": "window-free wall most nearly perpendicular to the window's facade, then the "
+            "largest, then the first clockwise from north",
+    "ceiling": "largest ceiling or roof of the zone",
+    "floor": "largest floor of the zone",
+    "window": "largest exterior window of the zone",
+}
+
+
 @dataclass(frozen=True)
-class CellGeometry:
+class SensorSurfaces:
+    """Where the detailed sensors are: the zone, one surface per class, the window.
+
+    Attributes
+    ----------
+    zone : str
+        The zone measured (spelled as in the model).
+    surfaces : dict
+        Surface class (``wall``, ``ceiling``, ``floor``) -> BuildingSurface:Detailed name.
+    window : str or None
+        The FenestrationSurface:Detailed whose transmitted and incident
+        irradiance is measured; None when the zone has no exterior window and
+        the config names none.
+    facade : str or None
+        The surface the window is on (its ground-reflected irradiance is measured).
+    chosen_by : dict
+        ``zone``, each class and ``window`` -> ``detailed.<key>`` when the
+        config named it, else the rule that chose it (:data:`RULES`).
+    """
+
+    zone: str
+    surfaces: dict[str, str]
+    window: str | None
+    facade: str | None
+    chosen_by: dict[str, str]
+
+    def glazing(self, source: str | Path | None = None) -> tuple[str, str]:
+        """(window, facade), or a BpsflowError naming ``detailed.window`` when there is none."""
+        if self.window is None or self.facade is None:
+            raise BpsflowError(
+                f"the detailed measurements need an exterior window in zone '{self.zone}' (a "
+                f"FenestrationSurface:Detailed of type Window or GlassDoor on a surface whose "
+                f"Outside Boundary Condition is Outdoors) and the model has none; name the "
+                f"measured window with detailed.window", source=source)
+        return self.window, self.facade
+
+
+def sensor_surfaces(config: Config) -> SensorSurfaces:
+    """The zone, surfaces and window of the detailed sensors in ``config``'s model.
+
+    The config's ``detailed`` keys (``zone``, ``wall``, ``ceiling``, ``floor``,
+    ``window``) where given, the module's geometric rules for the rest; see
+    :func:`select_sensor_surfaces`.
+    """
+    return select_sensor_surfaces(_idf(config), getattr(config, "detailed", None) or {},
+                                  config.source)
+
+
+def select_sensor_surfaces(idf, settings: dict[str, str] | None = None,
+                           source: str | Path | None = None) -> SensorSurfaces:
+    """Choose the zone, a surface per class and the window from the model's geometry.
+
+    The rules are the module's (see its notes): a named setting is checked
+    against the model and used; everything else is chosen by Surface Type,
+    outward normal, area and azimuth.
+
+    Parameters
+    ----------
+    idf : IdfModel
+        The model (:func:`bpsflow.simulation.idf.model_objects`).
+    settings : dict, optional
+        ``detailed.<key>`` -> IDF name, keys among :data:`SETTING_KEYS`.
+    source : str or Path, optional
+        The config file, for messages about its keys (default: the model file).
+
+    Returns
+    -------
+    SensorSurfaces
+
+    Raises
+    ------
+    BpsflowError
+        Naming the ``detailed.<key>`` to set when the model has several zones
+        and none is named, or the key and the model's candidates when a named
+        zone, surface or window is not one of them; also when the zone has no
+        surface of a class.
+    """
+    settings = {key: str(value).strip() for key, value in (settings or {}).items()}
+    where = source or idf.path
+    for key, value in settings.items():
+        if key not in SETTING_KEYS:
+            raise BpsflowError(f"detailed.{key}: unknown key, expected one of "
+                               f"{', '.join(SETTING_KEYS)}", source=where)
+        if not value:
+            raise BpsflowError(f"detailed.{key}: empty name", source=where)
+    zone, chosen_by = _sensor_zone(idf, settings.get("zone"), where)
+    clockwise = geometry_rules(idf)[0]
+    north = north_axis_deg(idf, zone)
+    every = idf.of_type("BUILDINGSURFACE:DETAILED")
+    in_zone = [(i, s) for i, s in enumerate(every) if s.get("Zone Name").upper() == zone.upper()]
+    window, facade, chosen_by["window"] = _sensor_window(idf, zone, in_zone,
+                                                         settings.get("window"), where)
+    window_normal = None if window is None else outward_normal(window.vertices(), clockwise)
+    hosts = {f.get("Building Surface Name").upper()
+             for f in idf.of_type("FENESTRATIONSURFACE:DETAILED")}
+
+    def wall_rank(item):
+        index, surface = item
+        normal = outward_normal(surface.vertices(), clockwise)
+        facing = 0.0 if window_normal is None else abs(float(normal @ window_normal))
+        # Rounded so that the last bits of two equal walls' areas and angles do not decide.
+        return (surface.name.upper() in hosts, round(facing, 6),
+                -round(polygon_area(surface.vertices()), 6),
+                round(azimuth_deg(normal, north), 6) % 360.0, index)
+
+    def size_rank(item):
+        index, surface = item
+        return -round(polygon_area(surface.vertices()), 6), index
+
+    surfaces = {}
+    for surface_class in SURFACE_CLASSES:
+        types = CLASS_SURFACE_TYPES[surface_class]
+        candidates = [(i, s) for i, s in in_zone if s.get("Surface Type").upper() in types]
+        kinds = " or ".join(t.title() for t in types)
+        named = settings.get(surface_class)
+        if named:
+            match = [s for _, s in candidates if s.name.upper() == named.upper()]
+            if not match:
+                other = next((s for s in every if s.name.upper() == named.upper()), None)
+                what = (f"it is a {other.get('Surface Type')} of zone '{other.get('Zone Name')}'"
+                        if other else "the model has no BuildingSurface:Detailed of that name")
+                raise BpsflowError(
+                    f"detailed.{surface_class}: '{named}' is not a surface of Surface Type "
+                    f"{kinds} in zone '{zone}' ({what}); expected one of: "
+                    f"{', '.join(s.name for _, s in candidates) or 'none'}", source=where)
+            surfaces[surface_class] = match[0].name
+            chosen_by[surface_class] = f"detailed.{surface_class}"
+            continue
+        if not candidates:
+            raise BpsflowError(f"zone '{zone}' has no BuildingSurface:Detailed of Surface Type "
+                               f"{kinds}; the detailed measurements need a {surface_class}",
+                               source=idf.path)
+        rank = wall_rank if surface_class == "wall" else size_rank
+        surfaces[surface_class] = min(candidates, key=rank)[1].name
+        chosen_by[surface_class] = RULES[surface_class]
+    return SensorSurfaces(zone=zone, surfaces=surfaces,
+                          window=None if window is None else window.name,
+                          facade=None if facade is None else facade.name,
+                          chosen_by={key: chosen_by[key] for key in SETTING_KEYS})
+
+
+def _zones(idf) -> list[str]:
+    """The model's zones: its Zone objects, else the zones its surfaces name."""
+    names = [z.name for z in idf.of_type("ZONE")]
+    if not names:
+        seen: dict[str, str] = {}
+        for surface in idf.of_type("BUILDINGSURFACE:DETAILED"):
+            seen.setdefault(surface.get("Zone Name").upper(), surface.get("Zone Name"))
+        names = list(seen.values())
+    return names
+
+
+def _sensor_zone(idf, named: str | None, where) -> tuple[str, dict[str, str]]:
+    zones = _zones(idf)
+    if named:
+        match = [z for z in zones if z.upper() == named.upper()]
+        if not match:
+            raise BpsflowError(f"detailed.zone: the model has no zone '{named}'; its zones: "
+                               f"{', '.join(zones) or 'none'}", source=where)
+        return match[0], {"zone": "detailed.zone"}
+    if len(zones) == 1:
+        return zones[0], {"zone": RULES["zone"]}
+    if not zones:
+        raise BpsflowError("the model has no zone; the detailed measurements need one",
+                           source=idf.path)
+    raise BpsflowError(f"the model has {len(zones)} zones ({', '.join(zones)}); set "
+                       f"detailed.zone in the config to the zone the detailed sensors are in",
+                       source=where)
+
+
+def _sensor_window(idf, zone: str, in_zone: list, named: str | None, where):
+    """(window, its host surface, how chosen); (None, None, reason) without exterior glazing."""
+    hosts = {s.name.upper(): s for _, s in in_zone}
+    glazing = [(i, f) for i, f in enumerate(idf.of_type("FENESTRATIONSURFACE:DETAILED"))
+               if f.get("Surface Type").upper() in WINDOW_TYPES
+               and f.get("Building Surface Name").upper() in hosts]
+    if named:
+        match = [f for _, f in glazing if f.name.upper() == named.upper()]
+        if not match:
+            raise BpsflowError(
+                f"detailed.window: '{named}' is not a window of zone '{zone}' (a "
+                f"FenestrationSurface:Detailed of type Window or GlassDoor on one of its "
+                f"surfaces); expected one of: {', '.join(f.name for _, f in glazing) or 'none'}",
+                source=where)
+        window, how = match[0], "detailed.window"
+    else:
+        exterior = [(i, f) for i, f in glazing
+                    if hosts[f.get("Building Surface Name").upper()]
+                    .get("Outside Boundary Condition").upper() == "OUTDOORS"]
+        if not exterior:
+            return None, None, "no exterior window in the zone"
+        window = min(exterior, key=lambda item: (
+            -round(polygon_area(item[1].vertices()) * item[1].number("Multiplier", 1.0), 6),
+            item[0]))[1]
+        how = RULES["window"]
+    return window, hosts[window.get("Building Surface Name").upper()], how
+
+
+@dataclass(frozen=True)
+class SensorGeometry:
     """What the sensors' placement implies, from the model's geometry.
 
     Attributes
@@ -246,7 +598,8 @@ class CellGeometry:
     glazed_area_m2 : float
         Glazed area of the window, m².
     south_facade_ground_view_factor : float
-        View factor of the south facade to the ground, dimensionless.
+        View factor to the ground of the window's facade (the south wall on the
+        test cell), dimensionless.
     boundary_surface_names : dict
         Boundary surface key -> IDF surfaces whose outside face it imposes.
     boundary_sensor_area_m2 : dict
@@ -291,13 +644,20 @@ def air_sensor_heights(floor_z_m: float, ceiling_height_m: float,
             for name, z in centroid_z_m.items()}
 
 
-def cell_geometry(config: Config) -> CellGeometry:
-    """Sensor separation, glazed area, view factor and boundary sensor areas from the model."""
-    from bpsflow.simulation.idf import centroid_height, polygon_area
+def cell_geometry(config: Config) -> SensorGeometry:
+    """Sensor separation, glazed area, view factor and boundary sensor areas from the model.
+
+    The ceiling, floor, window and facade are the :func:`sensor_surfaces`; the
+    room height is that of their zone.
+    """
+    from bpsflow.simulation.idf import centroid_height
 
     idf = _idf(config)
-    ceiling, floor = _surface(idf, SURFACE_CLASSES["ceiling"]), _surface(idf, SURFACE_CLASSES["floor"])
-    zone = floor.get("Zone Name").upper()
+    sensors = sensor_surfaces(config)
+    window_name, facade_name = sensors.glazing(config.source)
+    ceiling = _surface(idf, sensors.surfaces["ceiling"])
+    floor = _surface(idf, sensors.surfaces["floor"])
+    zone = sensors.zone.upper()
     in_zone = [s for s in idf.of_type("BUILDINGSURFACE:DETAILED")
                if s.get("Zone Name").upper() == zone]
     floors = [s for s in in_zone if s.get("Surface Type").upper() == "FLOOR"]
@@ -307,16 +667,17 @@ def cell_geometry(config: Config) -> CellGeometry:
     heights = air_sensor_heights(floor_z, height, {
         "ceiling": centroid_height(ceiling.vertices()), "floor": centroid_height(floor.vertices())})
 
-    window = _surface(idf, WINDOW_SURFACE)
+    window = _surface(idf, window_name)
     multiplier = float(window.get("Multiplier") or 1.0)
     glazed = polygon_area(window.vertices()) * multiplier
 
-    facade = _surface(idf, SOUTH_FACADE)
+    facade = _surface(idf, facade_name)
     view = facade.get("View Factor to Ground").strip()
     try:
         view_factor = float(view)
     except ValueError:  # autocalculate: an unobstructed surface sees (1 - cos tilt) / 2 of ground
-        view_factor = (1 - math.cos(math.radians(_tilt_deg(facade.vertices())))) / 2
+        tilt = _tilt_deg(facade.vertices(), geometry_rules(idf)[0])
+        view_factor = (1 - math.cos(math.radians(tilt))) / 2
 
     names: dict[str, list[str]] = {}
     areas: dict[str, float] = {}
@@ -334,7 +695,7 @@ def cell_geometry(config: Config) -> CellGeometry:
                     source=config.source)
             names[key] = [s.name for s in surfaces]
             areas[key] = sum(polygon_area(s.vertices()) for s in surfaces) / BOUNDARY_SENSORS
-    return CellGeometry(
+    return SensorGeometry(
         room_height_m=height, air_sensor_heights_m=heights,
         air_sensor_separation_m=heights["ceiling"] - heights["floor"], glazed_area_m2=glazed,
         south_facade_ground_view_factor=view_factor, boundary_surface_names=names,
@@ -345,8 +706,8 @@ def true_field_value(config: Config, sample: dict[str, float], object_type: str,
                      field: str, default: float | None = None) -> float:
     """An IDF field's value in the instance of ``sample``: the model's value with every
     parameter targeting the field applied in config order (as instances are written)."""
-    from bpsflow.instances import apply_mode
     from bpsflow.simulation.idf import normalise
+    from bpsflow.simulation.targets import apply_mode
 
     idf = _idf(config)
     object_type = object_type.upper()
@@ -379,10 +740,13 @@ def _inside_curve(idf, surface: str) -> str:
 
 
 def true_convection(config: Config, sample: dict[str, float]) -> dict[str, dict]:
-    """Per class the true h = α |ΔT|^n (+ constant) of its inside convection curve (eq. 16)."""
+    """Per class the true h = α |ΔT|^n (+ constant) of its inside convection curve (eq. 16).
+
+    The class's surface is its :func:`sensor_surfaces` one.
+    """
     idf = _idf(config)
     out = {}
-    for surface_class, surface in SURFACE_CLASSES.items():
+    for surface_class, surface in sensor_surfaces(config).surfaces.items():
         curve = _inside_curve(idf, surface)
         # Curve:Exponent is C1 + C2 x^C3 with x = |ΔT|: α = C2, n = C3 (C1 = 0 in the model).
         out[surface_class] = {"surface": surface, "curve": curve, **{
@@ -399,9 +763,11 @@ def true_glazing(config: Config, sample: dict[str, float]) -> dict[str, float | 
     double-glazed system transmits τ_o τ_i / (1 − ρ_o,back ρ_i,front) at
     normal incidence (inter-reflections between the panes). Checked against
     EnergyPlus 25.2's own report of the construction (eio WindowConstruction).
+    The window is the :func:`sensor_surfaces` one.
     """
     idf = _idf(config)
-    construction = idf.find("CONSTRUCTION", _surface(idf, WINDOW_SURFACE).get("Construction Name"))
+    window = _surface(idf, sensor_surfaces(config).glazing(config.source)[0])
+    construction = idf.find("CONSTRUCTION", window.get("Construction Name"))
     glass_names = {g.name.upper() for g in idf.of_type("WINDOWMATERIAL:GLAZING")}
     layers = [f for f in construction.fields[1:] if f.strip().upper() in glass_names]
     if len(layers) != 2:
@@ -469,7 +835,7 @@ def true_gradient(config: Config, sample: dict[str, float]) -> float | None:
                             patterns[0].name, "Temperature Gradient")
 
 
-def true_values(config: Config, sample: dict[str, float], errors: "SensorErrors",
+def true_values(config: Config, sample: dict[str, float], errors: SensorErrors,
                 boundary_c: pd.DataFrame) -> dict:
     """The true values behind the detailed measurements (``truth.json``'s ``detailed`` block).
 
@@ -543,7 +909,7 @@ def global_horizontal_irradiance(direct_normal_w_m2: np.ndarray, diffuse_horizon
 
 
 def true_detailed(outputs: pd.DataFrame, boundary_c: pd.DataFrame,
-                  geometry: CellGeometry) -> pd.DataFrame:
+                  geometry: SensorGeometry) -> pd.DataFrame:
     """The true value behind every ``detailed.csv`` column, hourly.
 
     Parameters
@@ -553,7 +919,7 @@ def true_detailed(outputs: pd.DataFrame, boundary_c: pd.DataFrame,
         holding :func:`detailed_outputs`.
     boundary_c : DataFrame
         True boundary temperature per boundary surface (°C), indexed by timestamp.
-    geometry : CellGeometry
+    geometry : SensorGeometry
 
     Returns
     -------
@@ -723,9 +1089,17 @@ def sensor_error_description() -> str:
     )
 
 
-def detailed_metadata(config: Config, geometry: CellGeometry,
+def detailed_metadata(config: Config, geometry: SensorGeometry,
                       calibration: pd.DataFrame) -> dict:
-    """What ``detailed.json`` tells a refinement about the measurements."""
+    """What ``detailed.json`` tells a refinement about the measurements.
+
+    Among it the surfaces the sensors are on (:func:`sensor_surfaces`): ``zone``,
+    ``surface_classes``, ``window_surface``, ``south_facade_surface`` (the
+    window's facade, whatever its orientation) and how each was chosen
+    (``surface_selection``).
+    """
+    sensors = sensor_surfaces(config)
+    window, facade = sensors.glazing(config.source)
     periods = {}
     for period in config.model.periods:
         first, last = period_dates(period, config.model.year)
@@ -743,8 +1117,9 @@ def detailed_metadata(config: Config, geometry: CellGeometry,
             "0.01..0.99 of the room height, so the two are 0.98 room heights apart: use "
             "air_sensor_separation_m as h in eq. 18, not the room height"),
         "glazed_area_m2": geometry.glazed_area_m2,
-        "window_surface": WINDOW_SURFACE,
-        "south_facade_surface": SOUTH_FACADE,
+        "zone": sensors.zone,
+        "window_surface": window,
+        "south_facade_surface": facade,
         "south_facade_ground_view_factor": geometry.south_facade_ground_view_factor,
         "global_horizontal_note": (
             "global_horizontal_w_m2 is beam normal * sin(solar altitude) + diffuse horizontal from "
@@ -756,7 +1131,7 @@ def detailed_metadata(config: Config, geometry: CellGeometry,
             "per EnergyPlus zone timestep, h_t = alpha |T_air,t-1 - T_surf,t-1|^n and convection_t "
             "= h_t (T_air,t-1 - T_surf,t) (the adjacent air of the previous timestep); hourly means "
             "satisfy eq. 16-17 only approximately, worst where |air - surface| is a few tenths "
-            "of a kelvin (the east wall)"),
+            "of a kelvin (on the I600 test cell, the wall)"),
         "reference_sensor_std_c": REFERENCE_STD_C,
         "irradiance_relative_std": RELATIVE_STD,
         "heat_flux_relative_std": RELATIVE_STD,
@@ -764,7 +1139,8 @@ def detailed_metadata(config: Config, geometry: CellGeometry,
         "boundary_sensors_per_surface": BOUNDARY_SENSORS,
         "boundary_sensor_area_m2": geometry.boundary_sensor_area_m2,
         "boundary_surface_names": geometry.boundary_surface_names,
-        "surface_classes": dict(SURFACE_CLASSES),
+        "surface_classes": dict(sensors.surfaces),
+        "surface_selection": dict(sensors.chosen_by),
         "calibration": {"readings": int(len(calibration)), "plateaus": CALIBRATION_PLATEAUS,
                         "range_c": list(CALIBRATION_RANGE_C)},
         "sensor_error_model": sensor_error_description(),

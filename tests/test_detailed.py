@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -14,7 +15,9 @@ from bpsflow.boundary import ensure_sequences
 from bpsflow.cli import app
 from bpsflow.config import load_config, period_dates
 from bpsflow.errors import BpsflowError
-from bpsflow.instances import setpoint_schedules
+from bpsflow.simulation.idf import parse_idf_text, read_idf
+from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, instance_dir
+from bpsflow.simulation.setpoints import setpoint_schedules
 from bpsflow.synth import load_truth, truth_sample, write_detailed_measurements
 
 from conftest import ROOT, short_raw, write_config
@@ -150,6 +153,200 @@ def test_global_horizontal_irradiance_closed_form():
     np.testing.assert_allclose(ghi, [800 * 0.5 + 100, 50.0, 5.0])
 
 
+# Where the sensors are: chosen from the model's geometry ----------------------------
+
+W, D, H = 8.0, 5.0, 3.0   # synthetic box: x (building east) by y (building north) by z, m
+#: Outward faces of the box, vertices counterclockwise seen from outside, upper-left first.
+BOX_FACES = {
+    "south": ("Wall", [(0, 0, H), (0, 0, 0), (W, 0, 0), (W, 0, H)]),
+    "east": ("Wall", [(W, 0, H), (W, 0, 0), (W, D, 0), (W, D, H)]),
+    "north": ("Wall", [(W, D, H), (W, D, 0), (0, D, 0), (0, D, H)]),
+    "west": ("Wall", [(0, D, H), (0, D, 0), (0, 0, 0), (0, 0, H)]),
+    "ceiling": ("Ceiling", [(0, D, H), (0, 0, H), (W, 0, H), (W, D, H)]),
+    "floor": ("Floor", [(0, 0, 0), (0, D, 0), (W, D, 0), (W, 0, 0)]),
+}
+#: Names that say nothing true: the rules must not read them.
+MISLEADING = {"south": "EastWall", "east": "NorthWall", "north": "WestWall", "west": "SouthWall",
+              "ceiling": "Floor", "floor": "Ceiling"}
+
+
+def _part(vertices, u0, u1, w0, w1):
+    """A rectangle inside a wall: fractions u along its bottom edge, w up its side."""
+    top_left, bottom_left, bottom_right = (np.array(v, dtype=float) for v in vertices[:3])
+    along, up = bottom_right - bottom_left, top_left - bottom_left
+    corners = ((u0, w1), (u0, w0), (u1, w0), (u1, w1))
+    return [tuple(bottom_left + u * along + w * up) for u, w in corners]
+
+
+def box_idf(faces=None, names=None, windows=(("south", 0.3, 0.7, 0.2, 0.8),), rotate_deg=0.0,
+            north_axis_deg=0.0, zone_north_deg=0.0, coordinates="World", clockwise=False,
+            order=("ceiling", "north", "west", "floor", "east", "south"), zone="Room",
+            boundary="Outdoors", extra="") -> str:
+    """IDF text of a one-zone box (geometry only): the faces in ``order``, windows on them.
+
+    ``rotate_deg`` turns the vertices clockwise seen from above; ``windows`` are
+    (face, u0, u1, w0, w1) rectangles named ``Glass<k>``.
+    """
+    faces = dict(BOX_FACES if faces is None else faces)
+    names = {**{key: key for key in faces}, **(names or {})}
+    turn = np.radians(rotate_deg)
+
+    def place(vertices):
+        if clockwise:
+            vertices = vertices[::-1]
+        points = [(x * np.cos(turn) + y * np.sin(turn), -x * np.sin(turn) + y * np.cos(turn), z)
+                  for x, y, z in vertices]
+        return ",\n    ".join(f"{x:.6f}, {y:.6f}, {z:.6f}" for x, y, z in points)
+
+    entry = "Clockwise" if clockwise else "Counterclockwise"
+    text = [f"Building, Box, {north_axis_deg}, Suburbs, 0.04, 0.4, FullExterior, 25, 6;",
+            f"GlobalGeometryRules, UpperLeftCorner, {entry}, {coordinates};",
+            f"Zone, {zone}, {zone_north_deg};"]
+    for key in order:
+        kind, vertices = faces[key]
+        text.append(f"BuildingSurface:Detailed, {names[key]}, {kind}, Panel, {zone}, , {boundary}, "
+                    f", SunExposed, WindExposed, autocalculate, {len(vertices)},\n    "
+                    f"{place(vertices)};")
+    for k, (key, *fractions) in enumerate(windows):
+        text.append(f"FenestrationSurface:Detailed, Glass{k}, Window, Glazing, {names[key]}, , "
+                    f"autocalculate, , 1, 4,\n    {place(_part(faces[key][1], *fractions))};")
+    return "\n\n".join(text) + "\n" + extra
+
+
+def select(text: str, settings=None) -> d.SensorSurfaces:
+    return d.select_sensor_surfaces(parse_idf_text(text, Path("box.idf")), settings)
+
+
+def test_sensor_surfaces_of_the_test_cell_are_the_former_names(tmp_path):
+    config = load_config(write_config(tmp_path, short_raw()))
+    sensors = d.sensor_surfaces(config)
+    assert sensors.zone == "Cell"
+    assert sensors.surfaces == {"wall": "EastWall", "ceiling": "Ceiling", "floor": "Floor"}
+    assert (sensors.window, sensors.facade) == ("SouthWindow", "SouthWall")
+    assert sensors.chosen_by == {key: d.RULES[key] for key in d.SETTING_KEYS}
+    outputs = d.detailed_outputs(config)
+    assert outputs["window_transmitted_w"].key == "SouthWindow"
+    assert outputs["floor_surface_c"].key == "Floor"
+    meta = d.detailed_metadata(config, d.cell_geometry(config), pd.DataFrame({"step": [0]}))
+    assert meta["surface_classes"] == sensors.surfaces
+    assert (meta["zone"], meta["window_surface"], meta["south_facade_surface"]) == \
+        ("Cell", "SouthWindow", "SouthWall")
+
+
+def test_outward_normals_and_azimuths_of_the_test_cell():
+    idf = read_idf(ROOT / "sample_idf" / "flexlab_x3b.idf")
+    assert d.geometry_rules(idf) == (False, True)   # counterclockwise, world coordinates
+    azimuths = {s.name: d.azimuth_deg(d.outward_normal(s.vertices()))
+                for s in idf.of_type("BuildingSurface:Detailed")}
+    assert azimuths == pytest.approx({"SouthWall": 180, "EastWall": 90, "NorthWall": 0,
+                                      "WestWall": 270, "Ceiling": 0, "Floor": 0}, abs=1e-9)
+    ceiling = idf.find("BuildingSurface:Detailed", "Ceiling")
+    np.testing.assert_allclose(d.outward_normal(ceiling.vertices()), [0, 0, 1])
+    np.testing.assert_allclose(d.outward_normal(ceiling.vertices(), clockwise=True), [0, 0, -1])
+    assert np.linalg.norm(d.newell_normal(ceiling.vertices())) == pytest.approx(2 * 9.144 * 6.096)
+    assert d.azimuth_deg((1.0, 0.0, 0.0), north_axis_deg=300.0) == pytest.approx(30.0)
+
+
+@pytest.mark.parametrize("rotate, north, zone_north, coordinates, clockwise, wall", [
+    (0, 0, 0, "World", False, "east"),        # east and west tie; east is first from north
+    (0, 0, 0, "World", True, "east"),         # clockwise vertex entry: same outward normals
+    (30, 0, 0, "World", False, "east"),       # east face at 120°, west face at 300°
+    (90, 0, 0, "World", False, "west"),       # window faces west; the side faces north and south
+    (200, 0, 0, "World", False, "west"),      # east face at 290°, west face at 110°
+    (0, 180, 0, "Relative", False, "west"),   # the north axis turns the building around
+    (0, 90, 90, "Relative", False, "west"),   # building and zone north add up
+    (0, 180, 0, "World", False, "east"),      # world coordinates: EnergyPlus ignores the axis
+])
+def test_sensor_surfaces_follow_orientation_not_names(rotate, north, zone_north, coordinates,
+                                                      clockwise, wall):
+    sensors = select(box_idf(names=MISLEADING, rotate_deg=rotate, north_axis_deg=north,
+                             zone_north_deg=zone_north, coordinates=coordinates,
+                             clockwise=clockwise))
+    assert sensors.zone == "Room"
+    assert sensors.surfaces == {"wall": MISLEADING[wall], "ceiling": MISLEADING["ceiling"],
+                                "floor": MISLEADING["floor"]}
+    assert (sensors.window, sensors.facade) == ("Glass0", MISLEADING["south"])
+
+
+def test_sensor_surfaces_rank_glazing_perpendicularity_and_area():
+    east = BOX_FACES["east"][1]
+    cut = 2 * W / 3
+    split = {**BOX_FACES, "east": ("Wall", _part(east, 0, 0.6, 0, 1)),
+             "east2": ("Wall", _part(east, 0.6, 1, 0, 1)),
+             "ceiling": ("Roof", [(0, D, H), (0, 0, H), (cut, 0, H), (cut, D, H)]),
+             "ceiling2": ("Ceiling", [(cut, D, H), (cut, 0, H), (W, 0, H), (W, D, H)])}
+    # a split east wall: the whole west wall is larger, which outranks being first from north
+    sensors = select(box_idf(split, order=("east", "east2", "west", "north", "south", "ceiling2",
+                                           "ceiling", "floor")))
+    assert sensors.surfaces["wall"] == "west"
+    assert sensors.surfaces["ceiling"] == "ceiling"   # a Roof counts; the larger part wins
+    # the largest exterior window is measured; walls with glazing are passed over, and of the
+    # others the one perpendicular to the measured window's facade wins
+    windows = (("east", 0.4, 0.6, 0.4, 0.6), ("north", 0.2, 0.8, 0.2, 0.8))
+    sensors = select(box_idf(windows=windows))
+    assert (sensors.window, sensors.facade) == ("Glass1", "north")
+    assert sensors.surfaces["wall"] == "west"
+    # glazing to an adiabatic neighbour is not an exterior window
+    interior = select(box_idf(boundary="Adiabatic"))
+    assert interior.window is None
+    with pytest.raises(BpsflowError, match=r"exterior window in zone 'Room'.*detailed\.window"):
+        interior.glazing()
+    assert select(box_idf(boundary="Adiabatic"), {"window": "glass0"}).window == "Glass0"
+
+
+def test_several_zones_need_the_zone_key():
+    annex = ("Zone, Annex;\nBuildingSurface:Detailed, AnnexFloor, Floor, Panel, Annex, , Ground, , "
+             "NoSun, NoWind, 0, 4, 20, 0, 0, 20, 5, 0, 28, 5, 0, 28, 0, 0;\n")
+    text = box_idf(extra=annex)
+    with pytest.raises(BpsflowError, match=r"2 zones \(Room, Annex\); set detailed\.zone"):
+        select(text)
+    assert select(text, {"zone": "room"}).surfaces["wall"] == "east"
+    with pytest.raises(BpsflowError, match=r"detailed\.zone: the model has no zone 'Hall'; "
+                                           r"its zones: Room, Annex"):
+        select(text, {"zone": "Hall"})
+    with pytest.raises(BpsflowError, match=r"zone 'Annex' has no .*Surface Type Wall"):
+        select(text, {"zone": "Annex"})
+
+
+def test_config_names_surfaces_and_the_zone(tmp_path):
+    raw = short_raw()
+    raw["detailed"] = {"wall": "westwall", "window": "SouthWindow"}
+    config = load_config(write_config(tmp_path, raw))
+    sensors = d.sensor_surfaces(config)
+    assert sensors.surfaces["wall"] == "WestWall" and sensors.chosen_by["wall"] == "detailed.wall"
+    assert sensors.chosen_by["window"] == "detailed.window"
+    assert d.detailed_outputs(config)["wall_surface_c"].key == "WestWall"
+    assert d.true_convection(config, {p.name: p.distribution.ppf(np.array([0.5]))[0]
+                                      for p in config.parameters})["wall"]["surface"] == "WestWall"
+    raw["detailed"] = {"wall": "Ceiling"}
+    config = load_config(write_config(tmp_path, raw, name="bad.yaml"))
+    with pytest.raises(BpsflowError, match=r"bad\.yaml: detailed\.wall: 'Ceiling' .*it is a "
+                                           r"Ceiling.*expected one of: SouthWall, EastWall, "
+                                           r"NorthWall, WestWall"):
+        d.detailed_outputs(config)
+    raw["detailed"] = {"door": "SouthWindow"}
+    with pytest.raises(BpsflowError, match=r"detailed\.door"):
+        load_config(write_config(tmp_path, raw, name="unknown.yaml"))
+
+
+def test_a_second_zone_in_a_snippet_asks_for_the_zone_key(tmp_path):
+    snippet = tmp_path / "annex.idf"
+    snippet.write_text("Zone, Annex;\nBuildingSurface:Detailed, AnnexFloor, Floor, Panel, Annex, , "
+                       "Ground, , NoSun, NoWind, 0, 4, 20, 0, 0, 20, 5, 0, 28, 5, 0, 28, 0, 0;\n")
+    raw = short_raw(boundary_sequences=400)
+    raw["model"]["backend"] = "surrogate"
+    raw["model"]["idf_objects"] = [str(snippet)]
+    path = write_config(tmp_path, raw)
+    result = CliRunner().invoke(app, ["synth", str(path), "--truth", str(TRUTH), "--detailed",
+                                      "--out", str(tmp_path / "truth")])
+    assert result.exit_code != 0
+    assert "detailed.zone" in " ".join(result.output.split()) and "Annex" in result.output
+    raw["detailed"] = {"zone": "Cell"}
+    config = load_config(write_config(tmp_path, raw, name="zoned.yaml"))
+    assert d.sensor_surfaces(config).surfaces == {"wall": "EastWall", "ceiling": "Ceiling",
+                                                  "floor": "Floor"}
+
+
 # Files: from true outputs to readings, without EnergyPlus ---------------------------------
 
 @pytest.fixture
@@ -256,7 +453,8 @@ def test_energyplus_truth_carries_the_physics(tmp_path):
                                                        pd.Timestamp("2025-12-07 00:00"))
     meta = json.loads((out / d.METADATA_FILE).read_text())
     truth = json.loads((out / "truth.json").read_text())["detailed"]
-    tidy = pd.read_parquet(out / "instances" / "truth" / "outputs.parquet")
+    # the truth instance's own outputs, where synth's ensemble run left them
+    tidy = pd.read_parquet(instance_dir(out / "simulation", 0) / INSTANCE_OUTPUTS)
     true = (tidy.drop_duplicates(["timestamp", "output"])
             .pivot(index="timestamp", columns="output", values="value"))
 

@@ -24,7 +24,9 @@ from bpsflow.errors import BpsflowError
 from bpsflow.refine import estimators as est
 from bpsflow.refine import interval_table, refine, write_refinement
 from bpsflow.refine.inputs import hour_of_year_rows
+from bpsflow.refine.parameters import class_surfaces
 from bpsflow.sampling import sample
+from bpsflow.simulation.idf import parse_idf_text, read_idf
 from conftest import ROOT, i600_raw, write_config
 
 SIGMA_M = contract.REFERENCE_STD_C   # reference sensor, °C (seed Table 3.2, range = 3 std)
@@ -426,6 +428,59 @@ def test_column_names_are_the_detailed_contract():
     for column in (io.CEILING_AIR, io.FLOOR_AIR, io.WINDOW_TRANSMITTED, io.WINDOW_INCIDENT,
                    io.GLOBAL_HORIZONTAL, io.GROUND_REFLECTED):
         assert column in columns
+
+
+# Which surface each class was measured on ----------------------------------------
+
+#: Two zones, each with a wall, a ceiling and a floor (geometry only).
+TWO_ZONES = "".join(
+    f"Zone, {zone};\n"
+    f"BuildingSurface:Detailed, {zone}Wall, Wall, P, {zone}, , Outdoors, , SunExposed, "
+    f"WindExposed, autocalculate, 4, 0, 0, {z + 3}, 0, 0, {z}, 4, 0, {z}, 4, 0, {z + 3};\n"
+    f"BuildingSurface:Detailed, {zone}Top, Ceiling, P, {zone}, , Adiabatic, , NoSun, NoWind, 0, "
+    f"4, 0, 4, {z + 3}, 0, 0, {z + 3}, 4, 0, {z + 3}, 4, 4, {z + 3};\n"
+    f"BuildingSurface:Detailed, {zone}Bottom, Floor, P, {zone}, , Adiabatic, , NoSun, NoWind, 0, "
+    f"4, 0, 0, {z}, 0, 4, {z}, 4, 4, {z}, 4, 0, {z};\n"
+    for zone, z in (("Upstairs", 3), ("Downstairs", 0)))
+
+
+def test_class_surfaces_from_detailed_json_else_from_the_model_geometry():
+    idf = read_idf(ROOT / "sample_idf" / "flexlab_x3b.idf")
+    former = {"wall": "EastWall", "ceiling": "Ceiling", "floor": "Floor"}
+    assert class_surfaces(idf, {}) == former
+    assert class_surfaces(idf, {"wall": "northwall"}) == {**former, "wall": "NorthWall"}
+    assert class_surfaces(idf, {}, {"wall": "WestWall"}) == {**former, "wall": "WestWall"}
+    with pytest.raises(BpsflowError, match=r"detailed\.json: surface_classes\.floor: the model "
+                                           r"\(flexlab_x3b\.idf\) has no BuildingSurface:Detailed "
+                                           r"'Slab'"):
+        class_surfaces(idf, {"floor": "Slab"}, named_source="detailed.json")
+    two_zones = parse_idf_text(TWO_ZONES)
+    # detailed.json naming every class needs no geometry, so no zone either
+    named = {"wall": "UpstairsWall", "ceiling": "UpstairsTop", "floor": "UpstairsBottom"}
+    assert class_surfaces(two_zones, named) == named
+    with pytest.raises(BpsflowError, match=r"2 zones \(Upstairs, Downstairs\); set detailed\.zone"):
+        class_surfaces(two_zones, {"wall": "UpstairsWall"})
+    assert class_surfaces(two_zones, {"wall": "UpstairsWall"}, {"zone": "Downstairs"}) == \
+        {"wall": "UpstairsWall", "ceiling": "DownstairsTop", "floor": "DownstairsBottom"}
+
+
+def test_refine_without_surface_classes_takes_them_from_the_model(tmp_path):
+    make_detailed(tmp_path / "d", days=2, calibration_steps=50)
+    config = load_config(write_config(tmp_path, i600_raw()))
+    named = refine(config, tmp_path / "d")
+    path = tmp_path / "d" / "detailed.json"
+    meta = json.loads(path.read_text())
+    del meta["surface_classes"]   # a laboratory's metadata need not name the model's surfaces
+    path.write_text(json.dumps(meta))
+    chosen = refine(config, tmp_path / "d")
+    assert {c.surface_class: c.surface for c in named.convection}["wall"] == "NorthWall"
+    assert {c.surface_class: c.surface for c in chosen.convection} == \
+        {"wall": "EastWall", "ceiling": "Ceiling", "floor": "Floor"}
+    assert sum("chosen from the model's geometry" in note for note in chosen.notes) == 3
+    # NorthWall (named) and EastWall (chosen) share the wall curve: the same estimates
+    for before, after in zip(named.convection, chosen.convection, strict=True):
+        assert before.curve == after.curve
+        assert before.fit.alpha == after.fit.alpha and before.fit.exponent == after.fit.exponent
 
 
 def test_refine_recovers_the_truth_behind_bpsflow_synth_detailed(tmp_path):

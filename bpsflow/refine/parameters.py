@@ -134,20 +134,59 @@ def inside_convection_curve(idf: IdfModel, surface: str) -> str:
                        f"(SurfaceProperty:ConvectionCoefficients)", source=idf.path)
 
 
-def class_surface(idf: IdfModel, surface_class: str, named: dict[str, str]) -> str:
-    """The IDF surface a surface class was measured on (``detailed.json``, else by type)."""
-    if surface_class in named:
-        return named[surface_class]
-    from bpsflow.detailed import SURFACE_CLASSES
+def class_surfaces(idf: IdfModel, named: dict[str, str], settings: dict[str, str] | None = None,
+                   source: str | Path | None = None,
+                   named_source: str | Path | None = None) -> dict[str, str]:
+    """The IDF surface each surface class was measured on.
 
-    if surface_class in SURFACE_CLASSES:
-        return SURFACE_CLASSES[surface_class]
-    wanted = {"wall": ("WALL",), "ceiling": ("CEILING", "ROOF"), "floor": ("FLOOR",)}
-    for obj in idf.of_type("BuildingSurface:Detailed"):
-        if obj.get("Surface Type").upper() in wanted.get(surface_class, ()):
-            return obj.name
-    raise BpsflowError(f"no surface of class '{surface_class}' in the model and none named in "
-                       f"detailed.json", source=idf.path)
+    ``detailed.json``'s ``surface_classes`` names them when the measurements
+    say where the sensors were (``synth --detailed`` always writes it). A class
+    it leaves out, as a laboratory's own metadata may, is chosen from the
+    model's geometry by the rules and config keys (``detailed.zone``,
+    ``detailed.<class>``) of :func:`bpsflow.detailed.select_sensor_surfaces`,
+    the same that place the sensors of ``synth --detailed``.
+
+    Parameters
+    ----------
+    idf : IdfModel
+    named : dict
+        Surface class -> surface name, from ``detailed.json``.
+    settings : dict, optional
+        The config's ``detailed`` keys.
+    source : str or Path, optional
+        The config file (for messages about its keys).
+    named_source : str or Path, optional
+        The ``detailed.json`` file (for messages about its names).
+
+    Returns
+    -------
+    dict
+        Class (every one of :data:`bpsflow.detailed.SURFACE_CLASSES`) -> surface
+        name as the model spells it.
+
+    Raises
+    ------
+    BpsflowError
+        When ``detailed.json`` names a surface the model does not have, or the
+        geometry cannot choose one (see ``select_sensor_surfaces``).
+    """
+    from bpsflow.detailed import SURFACE_CLASSES, select_sensor_surfaces
+
+    surfaces = {s.name.upper(): s.name for s in idf.of_type("BuildingSurface:Detailed")}
+    chosen = {}
+    for surface_class in SURFACE_CLASSES:
+        name = named.get(surface_class)
+        if name is None:
+            continue
+        if name.upper() not in surfaces:
+            raise BpsflowError(f"surface_classes.{surface_class}: the model ({idf.path.name}) has "
+                               f"no BuildingSurface:Detailed '{name}'; its surfaces: "
+                               f"{', '.join(surfaces.values())}", source=named_source)
+        chosen[surface_class] = surfaces[name.upper()]
+    if len(chosen) < len(SURFACE_CLASSES):
+        selection = select_sensor_surfaces(idf, settings, source)
+        chosen = {c: chosen.get(c, selection.surfaces[c]) for c in SURFACE_CLASSES}
+    return chosen
 
 
 def relative_file(path: Path, start: Path) -> str:

@@ -63,7 +63,7 @@ from scipy import stats
 from bpsflow.config import Config, Parameter, period_dates
 from bpsflow.refine import estimators as est
 from bpsflow.refine import inputs as io
-from bpsflow.refine.parameters import (INTERVAL, bounded_normal, class_surface,
+from bpsflow.refine.parameters import (INTERVAL, bounded_normal, class_surfaces,
                                        distribution_from, idf_nominal, idf_targets,
                                        in_parameter_units, inside_convection_curve, interval,
                                        parameter_nominal, parameters_targeting,
@@ -183,7 +183,13 @@ def refine(config: Config, detailed_path: Path,
                      f"(eq. 14) for boundary temperatures, gradient and irradiance ratios; "
                      f"convection uses every step")
     boundary = _boundary(config, detailed, calibration, notes)
-    convection = _convection(detailed, calibration, idf, min_delta_t_sigmas, notes)
+    measured_on = class_surfaces(idf, meta.surface_classes, config.detailed, config.source,
+                                 detailed.metadata_path)
+    for surface_class, surface in measured_on.items():
+        if surface_class not in meta.surface_classes:
+            notes.append(f"convection {surface_class}: {detailed.metadata_path.name} names no "
+                         f"surface; {surface} chosen from the model's geometry")
+    convection = _convection(detailed, calibration, idf, measured_on, min_delta_t_sigmas, notes)
     gradient, gradient_std = _gradient(detailed, hourly, calibration)
     reflectance = _reflectance(detailed, hourly, min_irradiance_w_m2)
     refined: list[RefinedParameter] = []
@@ -239,7 +245,8 @@ def _boundary(config: Config, detailed: io.Detailed, calibration: pd.DataFrame,
 
 # Convection (eq. 15–17) --------------------------------------------------
 
-def _convection(detailed: io.Detailed, calibration: pd.DataFrame, idf, min_sigmas: float,
+def _convection(detailed: io.Detailed, calibration: pd.DataFrame, idf,
+                surfaces: dict[str, str], min_sigmas: float,
                 notes: list[str]) -> list[ConvectionClass]:
     frame, meta = detailed.frame, detailed.metadata
     steps_per_day = int(round(24 * 60 / detailed.step_minutes))
@@ -252,7 +259,7 @@ def _convection(detailed: io.Detailed, calibration: pd.DataFrame, idf, min_sigma
         temperatures = [names[io.SURFACE_C], names[io.AIR_C]]
         delta_t_std = float(np.sqrt(est.reading_variance(temperatures, calibration,
                                                          meta.reference_sensor_std_c).sum()))
-        surface = class_surface(idf, surface_class, meta.surface_classes)
+        surface = surfaces[surface_class]
         curve_name = inside_convection_curve(idf, surface)
         curve = idf.find("Curve:Exponent", curve_name)
         alpha_nominal = curve.number("Coefficient2 Constant")
