@@ -706,8 +706,7 @@ def true_field_value(config: Config, sample: dict[str, float], object_type: str,
                      field: str, default: float | None = None) -> float:
     """An IDF field's value in the instance of ``sample``: the model's value with every
     parameter targeting the field applied in config order (as instances are written)."""
-    from bpsflow.simulation.idf import normalise
-    from bpsflow.simulation.targets import apply_mode
+    from bpsflow.simulation.targets import apply_mode, targets_field
 
     idf = _idf(config)
     object_type = object_type.upper()
@@ -717,9 +716,7 @@ def true_field_value(config: Config, sample: dict[str, float], object_type: str,
     value = candidates[0].number(field, default)
     for parameter in config.parameters:
         for target in parameter.targets:
-            if (isinstance(target, IdfTarget) and target.object.upper() == object_type
-                    and (target.name == "*" or target.name.upper() == name.upper())
-                    and normalise(target.field) == normalise(field)):
+            if isinstance(target, IdfTarget) and targets_field(target, object_type, field, name):
                 value = apply_mode(parameter.mode, value, float(sample[parameter.name]))
     return float(value)
 

@@ -20,6 +20,7 @@ from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Distribution, Empirical
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import UNNAMED, IdfModel, normalise
+from bpsflow.simulation.targets import select_objects, targets_field
 
 #: Central probability of the intervals reported before and after refinement.
 INTERVAL = 0.90
@@ -34,14 +35,6 @@ def idf_targets(parameter: Parameter) -> list[IdfTarget]:
     return [t for t in parameter.targets if isinstance(t, IdfTarget)]
 
 
-def targets_field(target: IdfTarget, object_type: str, field: str, name: str | None = None) -> bool:
-    """Whether an IDF target sets ``field`` of ``object_type`` (named ``name``, or any)."""
-    if normalise(target.object) != normalise(object_type) or \
-            normalise(target.field) != normalise(field):
-        return False
-    return name is None or target.name == "*" or target.name.upper() == name.upper()
-
-
 def parameters_targeting(config: Config, object_type: str, field: str,
                          name: str | None = None) -> list[Parameter]:
     """The config's parameters with a target on ``object_type`` ``name`` ``field``."""
@@ -52,8 +45,8 @@ def parameters_targeting(config: Config, object_type: str, field: str,
 def idf_nominal(idf: IdfModel, target: IdfTarget) -> float:
     """The model's value of a target field (the first object when the name is ``*``)."""
     objects = idf.of_type(target.object)
-    if target.name != "*" and target.object.upper() not in UNNAMED:
-        objects = [o for o in objects if o.name.upper() == target.name.upper()]
+    if target.object.upper() not in UNNAMED:
+        objects = select_objects(objects, target.name)
     if not objects:
         raise BpsflowError(f"the model has no {target.object} '{target.name}' (a refined "
                            f"parameter targets it)", source=idf.path)

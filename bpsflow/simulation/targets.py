@@ -8,9 +8,17 @@ says how a sampled value combines with the model's nominal value.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, TypeVar
+
 from bpsflow.simulation.idf import normalise
 
-__all__ = ["apply_mode", "normalise", "matches_name"]
+if TYPE_CHECKING:
+    from bpsflow.config import IdfTarget
+
+__all__ = ["apply_mode", "normalise", "matches_name", "select_objects", "targets_field"]
+
+T = TypeVar("T")
 
 
 def apply_mode(mode: str, nominal: float, value: float) -> float:
@@ -25,3 +33,22 @@ def apply_mode(mode: str, nominal: float, value: float) -> float:
 def matches_name(pattern: str, name: str) -> bool:
     """Whether a target's object name (``*`` for every object) selects ``name`` (no case)."""
     return pattern == "*" or pattern.strip().upper() == name.strip().upper()
+
+
+def select_objects(objects: Sequence[T], pattern: str,
+                   name_of: Callable[[T], str] = lambda obj: obj.name) -> list[T]:  # type: ignore[attr-defined]
+    """The objects a target's name selects: all for ``*``, else those of that name (no case).
+
+    ``name_of`` reads an object's name (the no-IDD reader's ``.name`` by
+    default; the EnergyPlus backend passes eppy's).
+    """
+    return [obj for obj in objects if matches_name(pattern, name_of(obj))]
+
+
+def targets_field(target: IdfTarget, object_type: str, field: str,
+                  name: str | None = None) -> bool:
+    """Whether an IDF target sets ``field`` of ``object_type`` (the object ``name``, or any)."""
+    if normalise(target.object) != normalise(object_type) or \
+            normalise(target.field) != normalise(field):
+        return False
+    return name is None or matches_name(target.name, name)

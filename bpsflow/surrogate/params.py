@@ -17,7 +17,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, WeatherTarget
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.targets import apply_mode
+from bpsflow.simulation.targets import apply_mode, select_objects
 from bpsflow.simulation.idf import FIELDS, UNNAMED, IdfModel, describe_model, normalise
 
 Key = tuple[str, str, str]  # (TYPE, NAME upper, normalised field)
@@ -93,10 +93,8 @@ def _apply_target(values: FieldValues, config: Config, parameter, target: IdfTar
     if not objects:
         raise BpsflowError(f"{where}: no {target.object} object in {describe_model(config.model)}",
                            source=config.source)
-    if target.name == "*":
-        chosen = objects
-    else:
-        chosen = [o for o in objects if o.name.upper() == target.name.upper()]
+    chosen = select_objects(objects, target.name)
+    if target.name != "*":
         if not chosen:
             names = sorted({o.name for o in objects})
             raise BpsflowError(f"{where}: no {target.object} object named '{target.name}' in "

@@ -28,7 +28,7 @@ from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import describe_model, model_objects, model_text
 from bpsflow.simulation.setpoints import (ThermostatPlan, control_objects_text,
                                           setpoint_schedules, thermostat_plan)
-from bpsflow.simulation.targets import apply_mode
+from bpsflow.simulation.targets import apply_mode, select_objects
 from bpsflow.weather import perturb, read_epw, write_epw
 
 IDF_NAME = "in.idf"
@@ -136,11 +136,8 @@ def _resolve_idf_target(target: IdfTarget, idf, parameter: Parameter, where: str
         raise BpsflowError(f"{where}.object: '{target.object}' is not an EnergyPlus object type "
                            f"in the IDD", source=source)
     objects = idf.idfobjects[object_type]
-    if target.name == "*":
-        chosen = list(range(len(objects)))
-    else:
-        chosen = [k for k, obj in enumerate(objects)
-                  if object_name(obj).upper() == target.name.upper()]
+    chosen = select_objects(list(range(len(objects))), target.name,
+                            lambda k: object_name(objects[k]))
     if not chosen:
         names = sorted({object_name(o) for o in objects})
         raise BpsflowError(
