@@ -81,7 +81,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, OutputVariable, Test, period_dates
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.idf import polygon_area
+from bpsflow.simulation.idf import inside_convection_curve, polygon_area
 from bpsflow.tables import read_table
 
 DETAILED_FILE = "detailed.csv"
@@ -721,21 +721,6 @@ def true_field_value(config: Config, sample: dict[str, float], object_type: str,
     return float(value)
 
 
-def _inside_curve(idf, surface: str) -> str:
-    """The Curve:Exponent of a surface's inside UserCurve convection algorithm."""
-    for prop in idf.of_type("SURFACEPROPERTY:CONVECTIONCOEFFICIENTS"):
-        if prop.get("Surface Name").upper() != surface.upper():
-            continue
-        for k in (1, 2):
-            if (prop.get(f"Convection Coefficient {k} Location").upper() == "INSIDE"
-                    and prop.get(f"Convection Coefficient {k} Type").upper() == "USERCURVE"):
-                user = prop.get(f"Convection Coefficient {k} User Curve Name")
-                algorithm = idf.find("SURFACECONVECTIONALGORITHM:INSIDE:USERCURVE", user)
-                return algorithm.get("Hc Function of Temperature Difference Curve Name")
-    raise BpsflowError(f"surface '{surface}' has no inside UserCurve convection coefficient "
-                       f"(SurfaceProperty:ConvectionCoefficients)", source=idf.path)
-
-
 def true_convection(config: Config, sample: dict[str, float]) -> dict[str, dict]:
     """Per class the true h = α |ΔT|^n (+ constant) of its inside convection curve (eq. 16).
 
@@ -744,7 +729,7 @@ def true_convection(config: Config, sample: dict[str, float]) -> dict[str, dict]
     idf = _idf(config)
     out = {}
     for surface_class, surface in sensor_surfaces(config).surfaces.items():
-        curve = _inside_curve(idf, surface)
+        curve = inside_convection_curve(idf, surface)
         # Curve:Exponent is C1 + C2 x^C3 with x = |ΔT|: α = C2, n = C3 (C1 = 0 in the model).
         out[surface_class] = {"surface": surface, "curve": curve, **{
             key: true_field_value(config, sample, "Curve:Exponent", curve, field)

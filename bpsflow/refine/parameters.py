@@ -19,7 +19,7 @@ from pydantic import TypeAdapter
 from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Distribution, Empirical
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.idf import UNNAMED, IdfModel, normalise
+from bpsflow.simulation.idf import UNNAMED, IdfModel, inside_convection_curve, normalise
 from bpsflow.simulation.targets import select_objects, targets_field
 
 #: Central probability of the intervals reported before and after refinement.
@@ -105,26 +105,6 @@ def interval(distribution: Distribution, level: float = INTERVAL) -> tuple[float
     tail = (1 - level) / 2
     low, high = distribution.ppf(np.array([tail, 1 - tail]))
     return float(low), float(high)
-
-
-def inside_convection_curve(idf: IdfModel, surface: str) -> str:
-    """The Hc curve of a surface's inside convection, following the IDF's chain.
-
-    SurfaceProperty:ConvectionCoefficients (Inside, UserCurve) →
-    SurfaceConvectionAlgorithm:Inside:UserCurve → its "Hc Function of
-    Temperature Difference Curve Name".
-    """
-    for obj in idf.of_type("SurfaceProperty:ConvectionCoefficients"):
-        if obj.get("Surface Name").upper() != surface.upper():
-            continue
-        for k in (1, 2):
-            if (obj.get(f"Convection Coefficient {k} Location").upper() == "INSIDE"
-                    and obj.get(f"Convection Coefficient {k} Type").upper() == "USERCURVE"):
-                algorithm = idf.find("SurfaceConvectionAlgorithm:Inside:UserCurve",
-                                     obj.get(f"Convection Coefficient {k} User Curve Name"))
-                return algorithm.get("Hc Function of Temperature Difference Curve Name")
-    raise BpsflowError(f"surface '{surface}' has no inside UserCurve convection "
-                       f"(SurfaceProperty:ConvectionCoefficients)", source=idf.path)
 
 
 def class_surfaces(idf: IdfModel, named: dict[str, str], settings: dict[str, str] | None = None,

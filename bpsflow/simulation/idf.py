@@ -349,3 +349,46 @@ def polygon_area(vertices: list[tuple[float, float, float]]) -> float:
 
 def centroid_height(vertices: list[tuple[float, float, float]]) -> float:
     return sum(v[2] for v in vertices) / len(vertices)
+
+
+def surface_user_curves(idf: IdfModel, surface: str) -> tuple[str | None, str | None]:
+    """(inside, outside) ``SurfaceConvectionAlgorithm:*:UserCurve`` names assigned to a surface.
+
+    Read from the surface's ``SurfaceProperty:ConvectionCoefficients`` entries of
+    type UserCurve; None where it has none.
+    """
+    inside = outside = None
+    for obj in idf.of_type("SURFACEPROPERTY:CONVECTIONCOEFFICIENTS"):
+        if obj.get("Surface Name").upper() != surface.upper():
+            continue
+        for k in (1, 2):
+            where = obj.get(f"Convection Coefficient {k} Location").upper()
+            kind = obj.get(f"Convection Coefficient {k} Type").upper()
+            curve = obj.get(f"Convection Coefficient {k} User Curve Name")
+            if kind != "USERCURVE" or not curve:
+                continue
+            if where == "INSIDE":
+                inside = curve
+            elif where == "OUTSIDE":
+                outside = curve
+    return inside, outside
+
+
+def inside_convection_curve(idf: IdfModel, surface: str) -> str:
+    """The Hc curve of a surface's inside convection, following the IDF's chain.
+
+    SurfaceProperty:ConvectionCoefficients (Inside, UserCurve) →
+    SurfaceConvectionAlgorithm:Inside:UserCurve → its "Hc Function of
+    Temperature Difference Curve Name".
+
+    Raises
+    ------
+    BpsflowError
+        When the surface has no inside UserCurve convection.
+    """
+    algorithm, _ = surface_user_curves(idf, surface)
+    if algorithm is None:
+        raise BpsflowError(f"surface '{surface}' has no inside UserCurve convection "
+                           f"(SurfaceProperty:ConvectionCoefficients)", source=idf.path)
+    return idf.find("SURFACECONVECTIONALGORITHM:INSIDE:USERCURVE", algorithm).get(
+        "Hc Function of Temperature Difference Curve Name")

@@ -39,7 +39,8 @@ import numpy as np
 
 from bpsflow.config import Config
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.idf import IdfModel, IdfObject, centroid_height, polygon_area
+from bpsflow.simulation.idf import (IdfModel, IdfObject, centroid_height, polygon_area,
+                                   surface_user_curves)
 from bpsflow.surrogate.params import FieldValues
 from bpsflow.surrogate.schedules import Schedule, read_schedule
 from bpsflow.surrogate.solar import GlazingTables, double_glazing
@@ -207,27 +208,8 @@ def _curve(values: FieldValues, name: str) -> Curve:
                        f"model; the surrogate reads only those", source=idf.path)
 
 
-def _convection(idf: IdfModel, surface: str) -> tuple[str | None, str | None]:
-    """(inside user-curve name, outside user-curve name) assigned to a surface."""
-    inside = outside = None
-    for obj in idf.of_type("SURFACEPROPERTY:CONVECTIONCOEFFICIENTS"):
-        if obj.get("Surface Name").upper() != surface.upper():
-            continue
-        for k in (1, 2):
-            where = obj.get(f"Convection Coefficient {k} Location").upper()
-            kind = obj.get(f"Convection Coefficient {k} Type").upper()
-            curve = obj.get(f"Convection Coefficient {k} User Curve Name")
-            if kind != "USERCURVE" or not curve:
-                continue
-            if where == "INSIDE":
-                inside = curve
-            elif where == "OUTSIDE":
-                outside = curve
-    return inside, outside
-
-
 def _inside_curve(values: FieldValues, surface: str) -> tuple[str, Curve]:
-    name, _ = _convection(values.idf, surface)
+    name, _ = surface_user_curves(values.idf, surface)
     if name is None:
         raise BpsflowError(f"surface '{surface}' has no inside UserCurve convection "
                            f"(SurfaceProperty:ConvectionCoefficients); the surrogate needs one",
@@ -238,7 +220,7 @@ def _inside_curve(values: FieldValues, surface: str) -> tuple[str, Curve]:
 
 
 def _outside_curves(values: FieldValues, surface: str) -> tuple[Curve, Curve, str]:
-    _, name = _convection(values.idf, surface)
+    _, name = surface_user_curves(values.idf, surface)
     if name is None:
         raise BpsflowError(f"exterior surface '{surface}' has no outside UserCurve convection; "
                            f"the surrogate needs one", source=values.idf.path)
