@@ -184,3 +184,20 @@ def test_time_step_outputs_average_to_the_hourly_values(tmp_path):
     assert steps.index[0] == hourly.index[0] - pd.Timedelta(minutes=60 - 60 // per_hour)
     means = steps.groupby(steps.index.ceil("h")).mean()
     np.testing.assert_allclose(means.loc[hourly.index].to_numpy(), hourly.to_numpy(), atol=1e-9)
+
+
+@pytest.mark.energyplus
+def test_a_run_where_every_instance_fails_says_so_with_the_first_error(tmp_path):
+    raw = short_raw(samples=2)
+    path = write_config(tmp_path, raw)
+    config = load_config(path)
+    assert runner.invoke(app, ["sample", str(path)]).exit_code == 0
+    samples = read_samples(config.run_dir)
+    samples["glazing_solar_transmittance"] = 1.15      # fatal in EnergyPlus, every instance
+    samples.reset_index().to_parquet(config.run_dir / "samples.parquet", index=False)
+    result = runner.invoke(app, ["run", str(path), "--no-progress"])
+    assert result.exit_code == 1
+    assert "all 2 instances failed" in result.output
+    assert "Solar Transmittance" in result.output          # the .err excerpt
+    assert "Traceback" not in result.output
+    assert read_manifest(config.run_dir)["status"].tolist() == ["failed", "failed"]
