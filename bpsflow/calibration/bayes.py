@@ -93,7 +93,8 @@ class KohData:
     active: np.ndarray             # (k_active,) indices of sampled parameters
     n_parameters: int
     ard: bool
-    priors: dict[str, tuple[float, float]] = field(default_factory=dict)  # name -> (mean, sd) of log
+    #: name -> (mean, sd) of the log of the quantity
+    priors: dict[str, tuple[float, float]] = field(default_factory=dict)
     lowrank: bool = False
     x_inducing: np.ndarray | None = None   # (m, d_x) inducing inputs of δ (low-rank likelihood)
     extra_variance: np.ndarray | None = None  # (n,) known error variance (emulator error)
@@ -350,7 +351,8 @@ def initial_values(data: KohData, z_start: np.ndarray | None, chains: int,
     """
     rng = np.random.default_rng(random_state)
     k = len(data.active)
-    centre = np.zeros(k) if z_start is None else np.clip(np.asarray(z_start)[data.active], -2.5, 2.5)
+    centre = (np.zeros(k) if z_start is None
+              else np.clip(np.asarray(z_start)[data.active], -2.5, 2.5))
     n_ls = data.x_obs.shape[1] if data.ard else 1
     out = {"z": centre[None, :] + spread * rng.standard_normal((chains, k))}
     for name, size in (("log_discrepancy_std", None), ("log_discrepancy_lengthscale", n_ls),

@@ -33,13 +33,12 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.alignment import align
-from bpsflow.calibration.settings import (DEFAULT_VARIABLE_INPUTS, CalibrationSettings,
-                                          Scenario)
+from bpsflow.calibration.settings import DEFAULT_VARIABLE_INPUTS, CalibrationSettings, Scenario
 from bpsflow.config import Config, Parameter, Test, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 from bpsflow.sampling import latin_hypercube_unit
+from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 
 DESIGN_DIR = "design"
 
@@ -204,15 +203,15 @@ class Paired:
     resolution: str
     notes: list[str] = field(default_factory=list)
 
-    def subset(self, mask: np.ndarray) -> "Paired":
+    def subset(self, mask: np.ndarray) -> Paired:
         mask = np.asarray(mask)
         return replace(self, rows=self.rows[mask].reset_index(drop=True),
                        observed=self.observed[mask], simulated=self.simulated[mask])
 
-    def split(self, name: str) -> "Paired":
+    def split(self, name: str) -> Paired:
         return self.subset((self.rows["split"] == name).to_numpy())
 
-    def runs(self, columns: np.ndarray) -> "Paired":
+    def runs(self, columns: np.ndarray) -> Paired:
         """Keep only the runs (columns) selected by ``columns`` (indices or mask)."""
         return replace(self, simulated=self.simulated[:, columns],
                        instances=self.instances[columns])
@@ -458,7 +457,8 @@ def variable_inputs(config: Config, rows: pd.DataFrame, resolution: str, names: 
         elif name == "weekend":
             out[name] = (starts.dt.dayofweek.to_numpy() >= 5).astype(float)
         elif name in ("setpoint_c", "setpoint_c_lag2"):
-            out[name] = _setpoint_input(config, rows, starts, resolution, lag=2 * (name != "setpoint_c"))
+            out[name] = _setpoint_input(config, rows, starts, resolution,
+                                        lag=2 * (name != "setpoint_c"))
         elif name == "output":
             out[name] = rows["output"].map({o: i for i, o in enumerate(outputs)}).to_numpy(float)
     return pd.DataFrame(out, index=rows.index)

@@ -17,8 +17,8 @@ predicted in one batch (one vectorised emulator or surrogate call).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import minimize

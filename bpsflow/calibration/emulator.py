@@ -325,7 +325,8 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
                                                    - predicted[:, mine]) ** 2)),
             }
         test = EmulatorTest(r2=r_squared(ys[test_runs], predicted),
-                            rmse_standardised=float(np.sqrt(np.mean((ys[test_runs] - predicted) ** 2))),
+                            rmse_standardised=float(
+                                np.sqrt(np.mean((ys[test_runs] - predicted) ** 2))),
                             per_output=per_output, test_runs=test_runs, predicted=pred_units,
                             simulated=sim_units)
     grid = GridEmulator(xs, ts, ys, hyper)

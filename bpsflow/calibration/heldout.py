@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from bpsflow.metrics import (cv_rmse, guideline14_check, mbe, mcrps, nmbe, nmcrps, rmse)
+from bpsflow.metrics import cv_rmse, guideline14_check, mbe, mcrps, nmbe, nmcrps, rmse
 
 TEMPERATURE_UNITS = ("C", "°C", "DEGC", "K")
 

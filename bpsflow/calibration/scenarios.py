@@ -88,7 +88,7 @@ def plot_comparison(runs: list[CalibrationRun], path: Path) -> Path:
             if post is None:
                 continue
 
-            def scaled(v: float) -> float:
+            def scaled(v: float, prior: dict = prior) -> float:
                 return (v - prior["q05"]) / prior["width90"]
 
             left.plot([scaled(post["q05"]), scaled(post["q95"])], [j + offsets[k]] * 2,

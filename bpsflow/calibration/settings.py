@@ -174,7 +174,7 @@ class DeterministicSettings(_Strict):
     model: Literal["emulator", "simulator"] = "emulator"
 
     @model_validator(mode="after")
-    def _weights(self) -> "DeterministicSettings":
+    def _weights(self) -> DeterministicSettings:
         if self.nmbe_weight + self.cv_rmse_weight <= 0:
             raise ValueError("nmbe_weight and cv_rmse_weight cannot both be 0")
         return self
@@ -218,7 +218,7 @@ class CalibrationSettings(_Strict):
     scenarios: list[Scenario] = Field(default_factory=list)
 
     @model_validator(mode="after")
-    def _check(self) -> "CalibrationSettings":
+    def _check(self) -> CalibrationSettings:
         names = [s.name for s in self.scenarios]
         if len(set(names)) != len(names):
             raise ValueError("scenarios: scenario names must be unique")

@@ -272,7 +272,7 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
 
 def _simulator_predictor(config, parameters, paired: Paired, obs_rows, measured, source,
                          scenario, settings, backend):
-    """Predict the calibration rows by running the surrogate (deterministic ``model: simulator``)."""
+    """Calibration-row predictions from surrogate runs (deterministic ``model: simulator``)."""
     from bpsflow.simulation.backend import get_backend
     from bpsflow.simulation.ensemble import simulate_samples
 
