@@ -118,6 +118,37 @@ def day_rows(first: date | pd.Timestamp, days: int, n_rows: int = NON_LEAP_ROWS)
     return hour_rows(pd.date_range(start, periods=days, freq="D"), n_rows)
 
 
+def row_starts(year: int, n_rows: int = NON_LEAP_ROWS) -> pd.DatetimeIndex:
+    """The hour of ``year`` that each row of an ``n_rows`` file is read for: the inverse rule.
+
+    For writing a file a simulation of ``year`` reads (e.g. a ``Schedule:File``
+    profile): evaluate the profile at these hour starts, one per row.
+
+    Parameters
+    ----------
+    year : int
+        The simulated year (``model.year``).
+    n_rows : {8760, 8784}
+        Rows of the file to write.
+
+    Returns
+    -------
+    DatetimeIndex, length ``n_rows``
+        Start of the hour each row is read for. In a leap ``year`` with 8760
+        rows, 29 February has no row (it reads 28 February's); in a non-leap
+        ``year`` with 8784 rows, the 29 February rows are read for no hour
+        (``NaT``).
+    """
+    _month_starts(n_rows)
+    hours = pd.date_range(pd.Timestamp(year, 1, 1), pd.Timestamp(year + 1, 1, 1), freq="h",
+                          inclusive="left")
+    if n_rows == NON_LEAP_ROWS:
+        hours = hours[~((hours.month == 2) & (hours.day == 29))]
+    out = pd.Series(pd.NaT, index=np.arange(n_rows), dtype="datetime64[ns]")
+    out.iloc[hour_rows(hours, n_rows)] = hours
+    return pd.DatetimeIndex(out.to_numpy())
+
+
 def _month_starts(n_rows: int) -> np.ndarray:
     try:
         return _MONTH_START[int(n_rows)]

@@ -20,7 +20,7 @@ from bpsflow.surrogate.forcing import period_forcing
 from bpsflow.surrogate.params import field_values, sample_columns
 from bpsflow.surrogate.schedules import Schedule
 from bpsflow.weather import epw_rows, read_epw
-from bpsflow.yearhours import day_row, day_rows, hour_rows
+from bpsflow.yearhours import day_row, day_rows, hour_rows, row_starts
 
 from conftest import short_raw, write_config
 
@@ -66,6 +66,19 @@ def test_vectorised_and_single_date_agree_and_bad_lengths_are_refused():
         np.testing.assert_array_equal(epw_rows(stamps, n_rows), expected)
     with pytest.raises(BpsflowError, match="8760 .* or 8784"):
         hour_rows(stamps, 8000)
+
+
+def test_row_starts_inverts_the_rule():
+    for year in (2024, 2025):
+        for n_rows in (8760, 8784):
+            starts = row_starts(year, n_rows)
+            assert len(starts) == n_rows
+            read = ~starts.isna()
+            np.testing.assert_array_equal(hour_rows(starts[read], n_rows),
+                                          np.flatnonzero(read))
+    assert row_starts(2024)[59 * 24] == pd.Timestamp("2024-03-01 00:00")
+    assert row_starts(2024)[-1] == pd.Timestamp("2024-12-31 23:00")
+    assert row_starts(2025, 8784)[59 * 24:60 * 24].isna().all()
 
 
 def test_schedule_file_steps_follow_the_rule(tmp_path):
