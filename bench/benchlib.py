@@ -14,6 +14,8 @@ import tempfile
 from datetime import date
 from pathlib import Path
 
+from bpsflow.files import write_json
+
 RESULTS = Path(__file__).resolve().parent / "results.json"
 #: Every benchmark's scratch lives here: ignored by git, removed by ``make clean``.
 WORK = Path(__file__).resolve().parent / "work"
@@ -45,6 +47,6 @@ def record(name: str, value: float, unit: str, goal: str, command: str, **extra)
     entry = {"value": float(value), "unit": unit, "goal": goal, "command": command,
              "measured_on": measured_on(), **extra}
     data[name] = entry
-    RESULTS.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    write_json(RESULTS, data, sort_keys=True)
     print(f"{name}: {value:.4g} {unit} (goal {goal})")
     return entry

@@ -81,6 +81,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, OutputVariable, Test, period_dates
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_json
 from bpsflow.simulation.idf import inside_convection_curve, polygon_area
 from bpsflow.tables import read_table
 
@@ -1139,7 +1140,7 @@ def write_detailed(out_dir: Path, readings: pd.DataFrame, calibration: pd.DataFr
              "metadata": out_dir / METADATA_FILE}
     readings.to_csv(paths["detailed"], index_label="timestamp", float_format="%.7g")
     calibration.to_csv(paths["calibration"], index=False, float_format="%.7g")
-    paths["metadata"].write_text(json.dumps(metadata, indent=2))
+    write_json(paths["metadata"], metadata)
     return paths
 
 

@@ -15,7 +15,6 @@ true values behind them in the ``detailed`` block of ``truth.json``).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Literal
 
@@ -26,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from bpsflow.config import Config, _format_location
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_json
 
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
@@ -204,7 +204,7 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     if detailed:
         record["detailed"] = write_detailed_measurements(config, sample, outputs, truth.seed,
                                                          out_dir)
-    (out_dir / TRUTH_FILE).write_text(json.dumps(record, indent=2))
+    write_json(out_dir / TRUTH_FILE, record)
     return path
 
 

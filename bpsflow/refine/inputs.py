@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from datetime import date
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +33,7 @@ import pandas as pd
 
 from bpsflow import detailed as contract
 from bpsflow.errors import BpsflowError
+from bpsflow.yearhours import NON_LEAP_ROWS, hour_rows
 
 # File and column names come from bpsflow.detailed, which writes these files.
 DETAILED_FILE = contract.DETAILED_FILE
@@ -114,19 +114,14 @@ class Detailed:
 def hour_of_year_rows(hour_ending: pd.DatetimeIndex, rows_per_year: int = 8760) -> np.ndarray:
     """0-based row of a one-row-per-hour year file (hour-ending ``01/01 01:00`` is row 0).
 
-    With 8760 rows the file is a non-leap year: a leap year's 29 February has
-    no row (``-1``).
+    The rows of :func:`bpsflow.yearhours.hour_rows`, except that 29 February
+    gets ``-1`` in an 8760-row file: a measurement of that day has no row of
+    its own to replace (it would overwrite 28 February's).
     """
-    start = hour_ending - pd.Timedelta(hours=1)
-    rows = np.empty(len(start), dtype=int)
-    for i, stamp in enumerate(start):
-        try:
-            day = (date(2025 if rows_per_year == 8760 else 2024, stamp.month, stamp.day)
-                   .timetuple().tm_yday)
-        except ValueError:
-            rows[i] = -1
-            continue
-        rows[i] = (day - 1) * 24 + stamp.hour
+    start = pd.DatetimeIndex(hour_ending) - pd.Timedelta(hours=1)
+    rows = hour_rows(start, rows_per_year)
+    if rows_per_year == NON_LEAP_ROWS:
+        rows[(start.month == 2) & (start.day == 29)] = -1
     return rows
 
 

@@ -10,20 +10,17 @@ beside it and referenced by relative paths, so the folder moves as a whole.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
+import yaml
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-import yaml  # noqa: E402
-
-from bpsflow.refine.parameters import (BOUND_SIGMAS, INTERVAL, distribution_from,  # noqa: E402
-                                       relative_file)
-from bpsflow.refine.refinement import Refinement, samples_file  # noqa: E402
+from bpsflow.files import jsonable, write_json
+from bpsflow.refine.parameters import BOUND_SIGMAS, INTERVAL, distribution_from, relative_file
+from bpsflow.refine.refinement import Refinement, samples_file
 
 REFINED_CONFIG = "refined.yaml"
 REFINE_JSON = "refine.json"
@@ -57,8 +54,7 @@ def write_refinement(refinement: Refinement, out_dir: Path,
     convection_table(refinement).to_csv(paths["convection_csv"], index=False,
                                         float_format="%.6g")
     paths["json"] = out_dir / REFINE_JSON
-    paths["json"].write_text(json.dumps(_plain(summary(refinement, paths)), indent=2,
-                                        allow_nan=False))
+    write_json(paths["json"], summary(refinement, paths))
     paths["distributions_figure"] = plot_distributions(
         refinement, out_dir / "figures" / DISTRIBUTIONS_FIGURE)
     paths["convection_figure"] = plot_convection(refinement,
@@ -151,8 +147,8 @@ def interval_table(refinement: Refinement) -> pd.DataFrame:
 
 def summary(refinement: Refinement, paths: dict[str, Path]) -> dict:
     """Everything ``refine.json`` holds."""
-    from bpsflow.refine.refinement import period_summaries
     from bpsflow.refine import estimators as est
+    from bpsflow.refine.refinement import period_summaries
 
     detailed = refinement.detailed
     convection = {}
@@ -233,8 +229,8 @@ def plot_distributions(refinement: Refinement, path: Path) -> Path:
     refined = refinement.parameters
     columns = max(1, min(4, len(refined)))
     rows = max(1, int(np.ceil(len(refined) / columns)))
-    figure, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.8 * rows),
-                                squeeze=False)
+    figure = Figure(figsize=(3.6 * columns, 2.8 * rows))
+    axes = figure.subplots(rows, columns, squeeze=False)
     u = (np.arange(4000) + 0.5) / 4000
     for ax, item in zip(axes.flat, refined):
         after = distribution_from(item.distribution, None if item.samples is None
@@ -257,23 +253,21 @@ def plot_distributions(refinement: Refinement, path: Path) -> Path:
         ax.set_xlabel(f"{item.baseline.mode} value", fontsize=8)
     for ax in list(axes.flat)[len(refined):]:
         ax.axis("off")
-    handles = [plt.Rectangle((0, 0), 1, 1, color="0.75"),
-               plt.Rectangle((0, 0), 1, 1, color="tab:red", alpha=0.7)]
+    handles = [Rectangle((0, 0), 1, 1, color="0.75"),
+               Rectangle((0, 0), 1, 1, color="tab:red", alpha=0.7)]
     figure.legend(handles, ["baseline", f"refined ({INTERVAL:.0%} interval dashed)"],
                   loc="lower center", ncol=2, fontsize=8)
     figure.suptitle("Refined vs baseline input distributions (densities scaled per panel)",
                     fontsize=10)
     figure.tight_layout(rect=(0, 0.05, 1, 0.95))
     figure.savefig(path, dpi=110)
-    plt.close(figure)
     return path
 
 
 def plot_convection(refinement: Refinement, path: Path) -> Path:
     """log h vs log|ΔT| per surface class with the fitted line (seed eq. 17)."""
-    figure, axes = plt.subplots(1, len(refinement.convection),
-                                figsize=(4 * max(1, len(refinement.convection)), 3.4),
-                                squeeze=False)
+    figure = Figure(figsize=(4 * max(1, len(refinement.convection)), 3.4))
+    axes = figure.subplots(1, len(refinement.convection), squeeze=False)
     for ax, result in zip(axes.flat, refinement.convection):
         points = result.points.replace([np.inf, -np.inf], np.nan).dropna()
         points = points[(points["h_w_m2k"] > 0) & (points["delta_t_c"] != 0)]
@@ -296,30 +290,10 @@ def plot_convection(refinement: Refinement, path: Path) -> Path:
         ax.legend(fontsize=7)
     figure.tight_layout()
     figure.savefig(path, dpi=110)
-    plt.close(figure)
     return path
 
 
 def _plain(value):
-    """JSON- and YAML-safe copy: numpy scalars to Python, NaN and inf to None."""
-    def clean(item):
-        if isinstance(item, dict):
-            return {str(k): clean(v) for k, v in item.items()}
-        if isinstance(item, (list, tuple)):
-            return [clean(v) for v in item]
-        if isinstance(item, float) and not np.isfinite(item):
-            return None
-        return item
-    return clean(json.loads(json.dumps(value, default=_json)))
-
-
-def _json(value):
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
+    """JSON- and YAML-safe copy (:func:`bpsflow.files.jsonable`)."""
+    return jsonable(value)
     return str(value)

@@ -360,7 +360,7 @@ def write_instance(config: Config, sample: dict[str, float], directory: Path,
     if weather_errors:
         epw = read_epw(config.model.weather)
         weather = write_epw(epw, perturb(epw, weather_errors), directory / EPW_NAME,
-                            rows=period_hours(config))
+                            rows=period_hours(config, n_rows=epw.n_hours))
     else:
         weather = config.model.weather
     boundary_path = None
