@@ -193,7 +193,7 @@ def run_config(config: Config, run_dir: Path, backend: str | None = None) -> Con
     copy.execution.run_dir = Path(run_dir)
     copy.source = config.source
     if backend is not None:
-        copy.model.backend = backend
+        copy.model.backend = backend  # type: ignore[assignment]  # a registered name
     return copy
 
 

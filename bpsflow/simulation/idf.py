@@ -183,7 +183,7 @@ class IdfObject:
         """The vertex list of a surface (fields after 'Number of Vertices')."""
         start = len(FIELDS[self.type])
         values = [float(v) for v in self.fields[start:] if v.strip()]
-        return [tuple(values[i:i + 3]) for i in range(0, len(values) - 2, 3)]
+        return [(values[i], values[i + 1], values[i + 2]) for i in range(0, len(values) - 2, 3)]
 
 
 @dataclass

@@ -90,10 +90,10 @@ def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
             else:
                 runs.append((day, profile[which]))
         runs[-1] = (date(year, 12, 31), runs[-1][1])
-        for through, profile in runs:
+        for through, day_profile in runs:
             fields.append(f"Through: {through:%m/%d}")
             fields.append("For: AllDays")
-            for until, value in profile:
+            for until, value in day_profile:
                 fields.extend([f"Until: {until:02d}:00", f"{value:g}"])
         texts.append("Schedule:Compact,\n  " + ",\n  ".join(fields) + ";\n")
     return texts[0], texts[1]

@@ -88,7 +88,7 @@ def _output_features(config: Config) -> list[str]:
         spec = config.outputs[name]
         if spec.meter is not None:
             lacking.append(f"outputs.{name}: meters ({spec.meter}) are EnergyPlus's")
-        elif variable(spec.variable) is None:
+        elif variable(str(spec.variable)) is None:
             lacking.append(f"outputs.{name}: it does not compute '{spec.variable}' (it has: "
                            f"{', '.join(v.name for v in VARIABLES)})")
         if spec.frequency != "hourly":

@@ -384,7 +384,14 @@ def field_value(config: Config, slot: FieldSlot, sample: dict[str, float]) -> fl
     """The value of one field for a sample: each parameter on it applied in config order."""
     value = slot.nominal
     for name in slot.parameters:
-        value = apply_mode(config.parameter(name).mode, value, float(sample[name]))
+        mode = config.parameter(name).mode
+        if value is None and mode != "absolute":
+            raise BpsflowError(f"parameters ({name}): its field holds no number, so a {mode} "
+                               f"change cannot apply", source=config.source)
+        value = apply_mode(mode, value if value is not None else 0.0, float(sample[name]))
+    if value is None:
+        raise BpsflowError(f"parameters ({', '.join(slot.parameters)}): no value for a field",
+                           source=config.source)
     return value
 
 
