@@ -8,6 +8,7 @@ only (see :mod:`bpsflow.diagnosis.hidden`).
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -244,6 +245,298 @@ def test_bad_diagnosis_input_names_the_key(surrogate_base, tmp_path):
     result = CliRunner().invoke(app, ["diagnose", str(bad), "--measured", str(measured)])
     assert result.exit_code == 2
     assert "diagnosis.output" in result.output
+
+
+# ---------------------------------------------------------------------------
+# Extensions written for any model: the zone, the names, the facade
+
+#: Two zones on a building turned 30° clockwise; each conditioned by ideal loads
+#: (the east zone's connections come second, so "the first zone" is never right by
+#: accident). The model already uses names the west zone's extension would take.
+TWO_ZONES = """
+Version, 25.2;
+Building, Two zones, 30, Suburbs, 0.04, 0.4, FullExterior, 25, 6;
+GlobalGeometryRules, UpperLeftCorner, Counterclockwise, Relative;
+Zone, West Room, 0, 0, 0, 0, 1, 1, autocalculate, autocalculate, autocalculate;
+Zone, East Room, 0, 5, 0, 0, 1, 1, autocalculate, autocalculate, autocalculate;
+Schedule:Constant, bpsflow_infiltration_wind_always_on, , 1;
+ZoneInfiltration:DesignFlowRate, bpsflow_infiltration_wind, West Room,
+    bpsflow_infiltration_wind_always_on, Flow/Zone, 0.01, , , , 1, 0, 0, 0;
+BuildingSurface:Detailed, East Outer Wall, Wall, Ext, East Room, , Outdoors, , SunExposed,
+    WindExposed, 0.5, 4, 5, 0, 3, 5, 0, 0, 5, 4, 0, 5, 4, 3;
+BuildingSurface:Detailed, East Party Wall, Wall, Ext, East Room, , Surface, West Party Wall,
+    NoSun, NoWind, 0.5, 4, 0, 4, 3, 0, 4, 0, 0, 0, 0, 0, 0, 3;
+BuildingSurface:Detailed, East Roof, Roof, Ext, East Room, , Outdoors, , SunExposed,
+    WindExposed, 0, 4, 0, 4, 3, 0, 0, 3, 5, 0, 3, 5, 4, 3;
+ZoneHVAC:EquipmentConnections, West Room, West Equipment, West Supply, , West Air Node,
+    West Return;
+ZoneHVAC:EquipmentList, West Equipment, SequentialLoad, ZoneHVAC:IdealLoadsAirSystem,
+    West Ideal Loads, 1, 1, , ;
+ZoneHVAC:IdealLoadsAirSystem, West Ideal Loads, , West Supply;
+ZoneHVAC:EquipmentConnections, East Room, East Equipment, East Supply, , East Air Node,
+    East Return;
+ZoneHVAC:EquipmentList, East Equipment, SequentialLoad, ZoneHVAC:IdealLoadsAirSystem,
+    East Ideal Loads, 1, 1, , ;
+ZoneHVAC:IdealLoadsAirSystem, East Ideal Loads, , East Supply;
+"""
+
+
+def _stub_config(key: str | None, **diagnosis):
+    """What :func:`diagnosis_zone` reads of a config: settings, outputs, source."""
+    from types import SimpleNamespace
+
+    from bpsflow.config import OutputVariable
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+
+    output = (OutputVariable(variable="Zone Ideal Loads Zone Sensible Heating Rate", key=key)
+              if key else OutputVariable(meter="DistrictHeatingWater:Facility"))
+    return SimpleNamespace(diagnosis=DiagnosisSettings(**diagnosis),
+                           outputs={"heating_w": output}, source=None)
+
+
+def test_extension_zone_comes_from_settings_output_key_or_the_only_zone(tmp_path):
+    from bpsflow.diagnosis.extensions import diagnosis_zone, zone_of_key
+    from bpsflow.errors import BpsflowError
+    from bpsflow.simulation.idf import parse_idf_text
+
+    model = parse_idf_text(TWO_ZONES)
+    # the ideal loads system -> its equipment list -> the connections naming that list
+    assert zone_of_key(model, "EAST IDEAL LOADS") == "East Room"     # SQL keys are upper case
+    assert zone_of_key(model, "west air node") == "West Room"
+    assert zone_of_key(model, "East Outer Wall") == "East Room"
+    assert zone_of_key(model, "Environment") is None
+    assert diagnosis_zone(_stub_config("East Ideal Loads"), "heating_w", model=model) == "East Room"
+    # settings first: the per-extension key, then diagnosis.zone
+    config = _stub_config("East Ideal Loads", zone="west room",
+                          extension_zones={"solar_aperture": "East Room"})
+    assert diagnosis_zone(config, "heating_w", "envelope_ua", model) == "West Room"
+    assert diagnosis_zone(config, "heating_w", "solar_aperture", model) == "East Room"
+    # a meter names no zone, and there are two: the error names the key and the zones
+    with pytest.raises(BpsflowError, match=r"diagnosis\.zone.*West Room, East Room"):
+        diagnosis_zone(_stub_config(None), "heating_w", model=model)
+    with pytest.raises(BpsflowError, match=r"diagnosis\.zone: 'Attic' is not a Zone.*West Room"):
+        diagnosis_zone(_stub_config(None, zone="Attic"), "heating_w", model=model)
+    one = parse_idf_text(TWO_ZONES.replace("Zone, West Room", "Space, West Room"))
+    assert diagnosis_zone(_stub_config(None), "heating_w", model=one) == "East Room"
+
+
+def test_rendered_snippets_parse_name_the_zone_and_create_their_schedule(tmp_path):
+    """Every template, rendered for the zone of an ideal loads key, is IDF the model accepts."""
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.extensions import (EXTENSIONS, diagnosis_zone, model_names,
+                                              render_snippet)
+    from bpsflow.simulation.idf import model_objects, parse_idf_text
+
+    base = tmp_path / "two_zones.idf"
+    base.write_text(TWO_ZONES)
+    model = parse_idf_text(TWO_ZONES, base)
+    zone = diagnosis_zone(_stub_config("East Ideal Loads"), "heating_w", model=model)
+    files = []
+    for name, extension in EXTENSIONS.items():
+        rendered = render_snippet(extension, model, zone, variant=None)
+        assert not re.search(r"\{[a-z_]+\}", rendered.text)     # every placeholder filled
+        parsed = parse_idf_text(rendered.text)
+        main = parsed.find(extension.parameters[0].object, rendered.object_name)
+        assert main.get("Zone or ZoneList or Space or SpaceList Name") == "East Room"
+        assert main.get("Schedule Name") == rendered.schedule_name
+        schedule = [o for o in parsed.objects if o.type.startswith("SCHEDULE:")]
+        assert [o.name for o in schedule] == [rendered.schedule_name]
+        if extension.schedule_file is None:
+            assert schedule[0].type == "SCHEDULE:CONSTANT"
+            assert float(schedule[0].get("Hourly Value")) == 1.0
+        else:
+            assert schedule[0].get("File Name") == rendered.file_name
+        for added in parsed.objects:
+            assert added.name.startswith("bpsflow_")
+            assert added.name.upper() not in model_names(model)
+        path = tmp_path / extension.snippet
+        path.write_text(rendered.text)
+        files.append(path)
+    # the model already had the west zone's names: the east zone's are numbered past them
+    infiltration = render_snippet(EXTENSIONS["infiltration_wind"], model, zone)
+    assert (infiltration.object_name, infiltration.schedule_name) == (
+        "bpsflow_infiltration_wind_2", "bpsflow_infiltration_wind_always_on_2")
+    # the snippet assembly (which refuses duplicate schedule/infiltration/equipment names)
+    # takes all four together
+    assembled = model_objects(SimpleNamespace(idf=base, idf_objects=files))
+    assert len(assembled.of_type("ZONEINFILTRATION:DESIGNFLOWRATE")) == 3
+
+
+#: The test cell's snippets before they were templates (names as they were).
+PREVIOUS = {
+    "infiltration_wind": "ZoneInfiltration:DesignFlowRate, DiagnosisWindInfiltration, Cell, "
+                         "AlwaysOn, Flow/Zone, 0, , , , 0, 0, 1, 0;",
+    "envelope_ua": "ZoneInfiltration:DesignFlowRate, DiagnosisExtraConductance, Cell, AlwaysOn, "
+                   "Flow/Zone, 0, , , , 1, 0, 0, 0;",
+    "internal_gain_schedule": "OtherEquipment, DiagnosisScheduledGain, None, Cell, "
+                              "DiagnosisGainProfile, EquipmentLevel, 0, , , 0, 0, 0; "
+                              "Schedule:File, DiagnosisGainProfile, , internal_gain_profile.csv, "
+                              "1, 0, 8760, Comma, No, 60, No;",
+    "solar_aperture": "OtherEquipment, DiagnosisSolarAperture, None, Cell, "
+                      "DiagnosisFacadeIrradiance, EquipmentLevel, 0, , , 0, 0, 0; "
+                      "Schedule:File, DiagnosisFacadeIrradiance, , facade_irradiance.csv, 1, 0, "
+                      "8760, Comma, No, 60, No;",
+}
+
+
+def test_test_cell_rendering_matches_the_previous_snippets_apart_from_names():
+    """Same objects and values as the shipped snippets had; the schedule it used is now its own."""
+    from bpsflow.diagnosis.extensions import EXTENSIONS, diagnosis_zone, render_snippet
+    from bpsflow.simulation.idf import model_objects, parse_idf_text
+
+    config = load_config(DIAGNOSIS)
+    model = model_objects(config.model)
+    zone = diagnosis_zone(config, "heating_power_w", model=model)
+    assert zone == "Cell"
+    always_on = model.find("Schedule:Constant", "AlwaysOn")       # what the old ones used
+    assert float(always_on.get("Hourly Value")) == 1.0
+    for name, extension in EXTENSIONS.items():
+        rendered = render_snippet(extension, model, zone)
+        new = parse_idf_text(rendered.text).objects
+        old = parse_idf_text(PREVIOUS[name]).objects
+        renames = {old[0].name: rendered.object_name,
+                   old[0].get("Schedule Name"): rendered.schedule_name}
+        assert [o.type for o in new if o.type != "SCHEDULE:CONSTANT"] == [o.type for o in old]
+        for before, after in zip(old, [o for o in new if o.type != "SCHEDULE:CONSTANT"]):
+            assert [renames.get(f, f) for f in before.fields] == after.fields
+        constant = [o for o in new if o.type == "SCHEDULE:CONSTANT"]
+        if extension.schedule_file is None:      # AlwaysOn's replacement: also 1 at every hour
+            assert [(o.name, float(o.get("Hourly Value"))) for o in constant] == [
+                (rendered.schedule_name, 1.0)]
+        else:
+            assert constant == []
+
+
+def test_test_cell_extensions_simulate_as_the_previous_snippets(surrogate_base, tmp_path):
+    """The rendered infiltration snippets give the previous snippets' predictions, not just text."""
+    from bpsflow.config import IdfTarget
+    from bpsflow.diagnosis.fitting import output_simulator
+
+    config = load_config(surrogate_base)
+    rendered = config
+    for name in ("infiltration_wind", "envelope_ua"):
+        rendered = extend_config(rendered, EXTENSIONS[name], tmp_path / "new" / name,
+                                 output="heating_power_w")
+    previous = rendered.model_copy(deep=True)
+    previous.source = config.source
+    snippets = []
+    for name in ("infiltration_wind", "envelope_ua"):
+        path = tmp_path / "old" / f"{name}.idf"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(PREVIOUS[name])
+        snippets.append(path)
+    previous.model.idf_objects = [*config.model.idf_objects, *snippets]
+    old_names = {"infiltration_wind_m3s_per_ms": "DiagnosisWindInfiltration",
+                 "extra_conductance_m3s": "DiagnosisExtraConductance"}
+    for p in previous.parameters:
+        if p.name in old_names:
+            p.targets = [IdfTarget(object=p.targets[0].object, name=old_names[p.name],
+                                   field=p.targets[0].field)]
+    timestamps = pd.date_range("2025-11-04 01:00", periods=24 * 3, freq="h")
+    sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    rows = pd.DataFrame([{**sample, "infiltration_wind_m3s_per_ms": 0.004,
+                          "extra_conductance_m3s": 0.02}])
+    new = output_simulator(rendered, "heating_power_w", timestamps, backend="surrogate",
+                           work_dir=tmp_path / "runs_new")(rows)
+    old = output_simulator(previous, "heating_power_w", timestamps, backend="surrogate",
+                           work_dir=tmp_path / "runs_old")(rows)
+    np.testing.assert_allclose(new, old, rtol=0, atol=1e-9)
+    nested = output_simulator(rendered, "heating_power_w", timestamps, backend="surrogate",
+                              work_dir=tmp_path / "runs_zero")(pd.DataFrame([{
+                                  **sample, "infiltration_wind_m3s_per_ms": 0.0,
+                                  "extra_conductance_m3s": 0.0}]))
+    assert np.mean(new - nested) > 50.0       # the parameters reach the rendered objects
+
+
+def test_solar_aperture_irradiance_is_the_zone_facade_from_geometry(tmp_path):
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.drivers import derive_drivers
+    from bpsflow.diagnosis.extensions import (facade_class, facade_irradiance, plane_irradiance,
+                                              year_hours, zone_exterior_surfaces)
+    from bpsflow.simulation.idf import model_objects, parse_idf_text
+
+    config = load_config(DIAGNOSIS)
+    drivers = derive_drivers(config.model.weather, year_hours(config.model.year))
+    # the test cell: its south wall is the south facade, so the aperture sees exactly the
+    # driver; it has no outdoor east wall, so an east aperture gets the driver's plane
+    cell = model_objects(config.model)
+    south, where = facade_irradiance(config, "Cell", "south", cell)
+    assert where["surfaces"] == ["SouthWall"]
+    np.testing.assert_array_equal(south.to_numpy(), drivers["incident_solar_south"].to_numpy())
+    east, where = facade_irradiance(config, "Cell", "east", cell)
+    assert where["surfaces"] == [] and where["planes"] is None
+    np.testing.assert_array_equal(east.to_numpy(), drivers["incident_solar_east"].to_numpy())
+    # a turned building: the east zone's outer wall faces 90° + 30° (North Axis); the party
+    # wall (no sun, another zone behind it) is no facade; the roof is flat
+    model = parse_idf_text(TWO_ZONES)
+    surfaces = {s.name: s for s in zone_exterior_surfaces(model, "East Room")}
+    assert set(surfaces) == {"East Outer Wall", "East Roof"}
+    wall, roof = surfaces["East Outer Wall"], surfaces["East Roof"]
+    assert (wall.tilt, wall.azimuth, wall.area) == (90.0, 120.0, pytest.approx(12.0))
+    assert facade_class(wall.tilt, wall.azimuth) == "east" and roof.tilt == 0.0
+    stub = SimpleNamespace(model=SimpleNamespace(weather=config.model.weather,
+                                                 year=config.model.year))
+    values, where = facade_irradiance(stub, "East Room", "east", model)
+    assert where["surfaces"] == ["East Outer Wall"]
+    expected = plane_irradiance(config.model.weather, year_hours(config.model.year),
+                                [(90.0, 120.0)])[:, 0]
+    np.testing.assert_allclose(values.to_numpy(), expected, rtol=0, atol=1e-9)
+    assert np.abs(values.to_numpy() - drivers["incident_solar_east"].to_numpy()).max() > 10.0
+
+
+def test_hidden_effect_is_written_for_the_chosen_zone(tmp_path):
+    from bpsflow.diagnosis.hidden import EFFECTS, render_effect
+    from bpsflow.simulation.idf import parse_idf_text
+
+    model = parse_idf_text(TWO_ZONES)
+    for effect in EFFECTS:
+        text = render_effect(effect, 0.5, model, "east room")
+        parsed = parse_idf_text(text)
+        main = parsed.objects[0]
+        assert main.get("Zone or ZoneList or Space or SpaceList Name") == "East Room"
+        schedule = main.get("Schedule Name")
+        assert [o.name for o in parsed.objects if o.type.startswith("SCHEDULE:")] == [schedule]
+        assert schedule.startswith("bpsflow_hidden_")
+        assert float(main.fields[4 if main.type.startswith("ZONEINF") else 5]) == 0.5
+
+
+def test_report_says_no_extension_was_tried_when_they_are_switched_off(tmp_path):
+    """A model_form verdict with ``diagnosis.extensions: []`` claims no failed extension."""
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.report import diagnosis_record, markdown
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+    from bpsflow.diagnosis.workflow import Diagnosis, Model
+
+    config = load_config(DIAGNOSIS)
+    config.diagnosis = DiagnosisSettings(extensions=[])
+    stamps = pd.date_range("2025-11-04 01:00", periods=72, freq="h")
+    fit = SimpleNamespace(named={}, prediction=np.zeros(72))
+    base = Model(config, [], fit, "base")
+    block = {"nmbe": 0.0, "cvrmse": 0.1, "nmcrps": 0.05, "guideline14": True}
+    driver = {"name": "wind_speed", "group": "wind", "effect": 1.0, "share": 0.2,
+              "direction": 1, "p_value": 1e-6, "p_adjusted": 1e-5, "sign_consistent": True,
+              "significant": True}
+    result = Diagnosis(
+        output="heating_power_w", timestamps=stamps, measured=np.ones(72),
+        calibration=np.arange(72) < 48, drivers=pd.DataFrame(index=stamps), base=base,
+        final=base, scorecard={"calibration": block, "heldout": block},
+        rounds=[{"round": 1, "drivers": [driver], "whiteness": {"p_value": 0.01, "white": False},
+                 "significant": ["wind_speed"]}],
+        verdict="model_form",
+        cause={"driver": "wind_speed", "parameter": None, "extension": None,
+               "summary": "The residuals follow wind_speed, but no candidate extension "
+                          "improved the held-out accuracy significantly."},
+        final_scores={"calibration": block, "heldout": block})
+    record = diagnosis_record(result)
+    text = markdown(result, record, {})
+    for said in (record["cause"]["summary"], text):
+        assert "no candidate extension was tried" in said
+        assert "switched off" in said and "diagnosis.extensions is empty" in said
+        assert "improved the held-out accuracy" not in said
+    assert "## Candidate extensions" in text and "None tried" in text
 
 
 # ---------------------------------------------------------------------------

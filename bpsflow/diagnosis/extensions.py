@@ -11,16 +11,25 @@ discrepancy is large, revisit the physical model rather than let δ absorb it;
 extension                IDF objects                                new parameter (unit)
 =======================  =========================================  ============================
 infiltration_wind        ZoneInfiltration:DesignFlowRate, flow =    infiltration_wind_m3s_per_ms
-                         design × wind speed (C = 1)                (m³/s per m/s)
+                         design × wind speed (C = 1);               (m³/s per m/s)
+                         Schedule:Constant 1
 internal_gain_schedule   OtherEquipment, Schedule:File on/off       scheduled_gain_w (W while
                          block (day type × hours, the block that    on)
-                         best explains the residuals)
-                         from the calibration residuals)
+                         best explains the calibration residuals)
 solar_aperture           OtherEquipment, Schedule:File of the       solar_aperture_m2 (m²: W of
-                         facade's incident irradiance (pvlib)       gain per W/m² incident)
+                         irradiance on the zone's facade (model     gain per W/m² incident)
+                         geometry, pvlib)
 envelope_ua              ZoneInfiltration:DesignFlowRate, constant  extra_conductance_m3s (m³/s;
-                         flow (A = 1): a conductance to outdoors    ×ρc_p ≈ 1206 J/(m³K) = W/K)
+                         flow (A = 1): a conductance to outdoors;   ×ρc_p ≈ 1206 J/(m³K) = W/K)
+                         Schedule:Constant 1
 =======================  =========================================  ============================
+
+The snippets are templates (:func:`render_snippet`): every extension is
+written for one zone of the model (:func:`diagnosis_zone`), its objects are
+named ``bpsflow_<extension>`` (with a variant suffix, and a number when the
+model already uses the name) and a schedule it needs is created by the
+snippet itself, never assumed to exist. No model's zone, surface or schedule
+is named here.
 
 Which extension answers which driver (DESIGN.md §8 names) is
 :data:`DRIVER_EXTENSIONS`.
@@ -28,29 +37,38 @@ Which extension answers which driver (DESIGN.md §8 names) is
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Uniform
+from bpsflow.errors import BpsflowError
+
+if TYPE_CHECKING:
+    from bpsflow.simulation.idf import IdfModel, IdfObject
 
 #: Volumetric heat capacity of air used to report a flow as a conductance (J/(m³·K)).
 AIR_HEAT_CAPACITY_J_M3K = 1.2 * 1005.0
 
 SNIPPET_PACKAGE = "bpsflow.extensions_idf"
 
+#: Prefix of every object name diagnose adds to a model.
+NAME_PREFIX = "bpsflow_"
+
 
 @dataclass(frozen=True)
 class NewParameter:
-    """A parameter an extension adds: the IDF field it sets and its search range."""
+    """A parameter an extension adds: the field of its main object it sets, and its range."""
 
     name: str
     object: str
-    object_name: str
     field: str
     lower: float
     upper: float
@@ -60,15 +78,31 @@ class NewParameter:
 
 @dataclass(frozen=True)
 class Extension:
-    """One candidate extension of the model."""
+    """One candidate extension of the model.
+
+    ``snippet`` is the template in ``bpsflow/extensions_idf``; its main object
+    (the one the parameters target) is named from :attr:`object_name`, its
+    schedule from :attr:`schedule_name`, and ``schedule_file`` is the CSV a
+    ``Schedule:File`` reads (``None``: the snippet creates a constant
+    schedule).
+    """
 
     name: str
     description: str
-    snippet: str                          # file in bpsflow/extensions_idf
+    snippet: str
     parameters: tuple[NewParameter, ...]
-    schedule_file: str | None = None      # CSV the snippet's Schedule:File reads
-    schedule_name: str | None = None      # that Schedule:File object's name
+    schedule_file: str | None = None
     drivers: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def object_name(self) -> str:
+        """Base name of the main object (before the variant suffix and de-duplication)."""
+        return NAME_PREFIX + self.name
+
+    @property
+    def schedule_name(self) -> str:
+        """Base name of the snippet's schedule: hourly values from a file, or always 1."""
+        return f"{self.object_name}_{'hourly' if self.schedule_file else 'always_on'}"
 
 
 EXTENSIONS: dict[str, Extension] = {
@@ -78,7 +112,7 @@ EXTENSIONS: dict[str, Extension] = {
         snippet="infiltration_wind.idf",
         parameters=(NewParameter(
             "infiltration_wind_m3s_per_ms", "ZoneInfiltration:DesignFlowRate",
-            "DiagnosisWindInfiltration", "Design Flow Rate", 0.0, 0.05, "m3/s per m/s",
+            "Design Flow Rate", 0.0, 0.05, "m3/s per m/s",
             "infiltration flow per m/s of wind speed"),),
         drivers=("wind_speed",)),
     "internal_gain_schedule": Extension(
@@ -86,18 +120,18 @@ EXTENSIONS: dict[str, Extension] = {
         description="an unmodelled internal gain following an hour-of-day / weekday profile",
         snippet="internal_gain_schedule.idf",
         parameters=(NewParameter(
-            "scheduled_gain_w", "OtherEquipment", "DiagnosisScheduledGain", "Design Level",
+            "scheduled_gain_w", "OtherEquipment", "Design Level",
             -3000.0, 3000.0, "W", "gain while the block schedule is on"),),
-        schedule_file="internal_gain_profile.csv", schedule_name="DiagnosisGainProfile",
+        schedule_file="internal_gain_profile.csv",
         drivers=("hour_of_day", "weekend")),
     "solar_aperture": Extension(
         name="solar_aperture",
         description="an unmodelled solar gain through a facade (gain factor × incident solar)",
         snippet="solar_aperture.idf",
         parameters=(NewParameter(
-            "solar_aperture_m2", "OtherEquipment", "DiagnosisSolarAperture", "Design Level",
+            "solar_aperture_m2", "OtherEquipment", "Design Level",
             -5.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),),
-        schedule_file="facade_irradiance.csv", schedule_name="DiagnosisFacadeIrradiance",
+        schedule_file="facade_irradiance.csv",
         drivers=("incident_solar_south", "incident_solar_east", "incident_solar_west",
                  "incident_solar_north", "incident_solar_roof", "global_horizontal_radiation",
                  "direct_normal_radiation", "diffuse_horizontal_radiation")),
@@ -107,7 +141,7 @@ EXTENSIONS: dict[str, Extension] = {
         snippet="envelope_ua.idf",
         parameters=(NewParameter(
             "extra_conductance_m3s", "ZoneInfiltration:DesignFlowRate",
-            "DiagnosisExtraConductance", "Design Flow Rate", 0.0, 0.1, "m3/s",
+            "Design Flow Rate", 0.0, 0.1, "m3/s",
             "constant outdoor air flow (× 1206 J/(m³K) = W/K)"),),
         drivers=("outdoor_air_temperature",)),
 }
@@ -143,26 +177,248 @@ def facade_of(driver: str) -> str:
 
 
 def snippet_path(extension: Extension) -> Path:
-    """The packaged IDF snippet of ``extension``."""
+    """The packaged IDF template of ``extension``."""
     return Path(str(resources.files(SNIPPET_PACKAGE).joinpath(extension.snippet)))
 
 
-def new_parameters(extension: Extension, variant: int | None = None) -> list[Parameter]:
-    """The extension's parameters as config parameters (uniform over the search range)."""
+# ---------------------------------------------------------------------------
+# Which zone: from the settings, the diagnosed output, or the model itself
+
+
+def model_zones(model: IdfModel) -> list[str]:
+    """Names of the model's ``Zone`` objects, in file order."""
+    return [o.name for o in model.of_type("ZONE") if o.name]
+
+
+def zone_of_key(model: IdfModel, key: str | None) -> str | None:
+    """The zone an output variable's ``key`` refers to, read from the model; ``None`` if none.
+
+    The key may be the zone itself (``Zone Mean Air Temperature``), a zone
+    equipment (e.g. a ``ZoneHVAC:IdealLoadsAirSystem``: the
+    ``ZoneHVAC:EquipmentList`` that lists it, then the
+    ``ZoneHVAC:EquipmentConnections`` that uses that list), the zone's air
+    node, a ``Space`` or a surface. Names compare without case, as EnergyPlus
+    compares them. Keys naming no zone (``Environment``, ``*``, a meter's)
+    give ``None``.
+    """
+    if not key:
+        return None
+    wanted = key.strip().upper()
+    zones = {z.upper(): z for z in model_zones(model)}
+
+    def known(name: str) -> str | None:
+        return zones.get(name.strip().upper())
+
+    if wanted in zones:
+        return zones[wanted]
+    # An equipment list: Name, Load Distribution Scheme, then per equipment
+    # (type, name, cooling sequence, heating sequence, two fraction schedules).
+    lists = {o.name.upper() for o in model.of_type("ZONEHVAC:EQUIPMENTLIST")
+             if any(f.strip().upper() == wanted for f in o.fields[3::6])}
+    for connection in model.of_type("ZONEHVAC:EQUIPMENTCONNECTIONS"):
+        # Zone Name, Conditioning Equipment List Name, Inlet Node, Exhaust Node, Zone Air Node
+        fields = [f.strip().upper() for f in connection.fields]
+        if (len(fields) > 1 and fields[1] in lists) or (len(fields) > 4 and fields[4] == wanted):
+            return known(connection.fields[0])
+    for space in model.of_type("SPACE"):
+        if space.name.upper() == wanted and len(space.fields) > 1:
+            return known(space.fields[1])
+    for surface, zone_field in _surface_fields(model):
+        if surface.name.upper() == wanted:
+            return known(surface.fields[zone_field])
+    return None
+
+
+def diagnosis_zone(config: Config, output: str | None = None, extension: str | None = None,
+                   model: IdfModel | None = None) -> str:
+    """The zone an extension is written for.
+
+    In this order: ``diagnosis.extension_zones[extension]``, ``diagnosis.zone``,
+    the zone the diagnosed ``output`` refers to (:func:`zone_of_key` of its
+    ``key``), the model's only zone.
+
+    Parameters
+    ----------
+    config : Config
+        The config whose model is extended (its ``diagnosis`` section, or the
+        defaults).
+    output : str, optional
+        The diagnosed output (a key of ``config.outputs``).
+    extension : str, optional
+        The extension's name, for ``diagnosis.extension_zones``.
+    model : IdfModel, optional
+        The model's objects (default: read from ``config.model``).
+
+    Raises
+    ------
+    BpsflowError
+        A configured zone is not a ``Zone`` of the model, or the model has
+        several zones and neither the settings nor the output pick one (the
+        message names ``diagnosis.zone`` and lists the zones).
+    """
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+    from bpsflow.simulation.idf import model_objects
+
+    settings = getattr(config, "diagnosis", None) or DiagnosisSettings()
+    model = model if model is not None else model_objects(config.model)
+    zones = model_zones(model)
+    listed = ", ".join(zones) or "none"
+    configured = [(f"diagnosis.extension_zones.{extension}",
+                   settings.extension_zones.get(extension) if extension else None),
+                  ("diagnosis.zone", settings.zone)]
+    for key, name in configured:
+        if name:
+            found = {z.upper(): z for z in zones}.get(name.strip().upper())
+            if found is None:
+                raise BpsflowError(f"{key}: '{name}' is not a Zone of the model (its zones: "
+                                   f"{listed})", source=config.source)
+            return found
+    variable = config.outputs.get(output) if output else None
+    key = getattr(variable, "key", None)
+    found = zone_of_key(model, key)
+    if found is not None:
+        return found
+    if len(zones) == 1:
+        return zones[0]
+    said = f"the output '{output}' (key '{key}') refers to none of them" if key else \
+        "no output names one"
+    raise BpsflowError(f"diagnosis.zone: the model has {len(zones)} zones ({listed}) and {said}; "
+                       f"set diagnosis.zone (or diagnosis.extension_zones) to the zone the "
+                       f"candidate extensions are written for", source=config.source)
+
+
+# ---------------------------------------------------------------------------
+# Rendering a template into IDF objects for one zone
+
+#: A placeholder: a lower-case name in braces (IDF unit comments such as
+#: ``{m3/s}`` or ``{W}`` never match).
+_PLACEHOLDER = re.compile(r"\{([a-z_]+)\}")
+
+
+def fill_template(text: str, values: dict[str, str]) -> str:
+    """``text`` with every ``{name}`` placeholder replaced by ``values[name]``.
+
+    Raises
+    ------
+    KeyError
+        A placeholder has no value (a template and its caller disagree).
+    """
+    def one(match: re.Match) -> str:
+        if match.group(1) not in values:
+            raise KeyError(f"template placeholder {{{match.group(1)}}} has no value")
+        return values[match.group(1)]
+
+    lines = []
+    for line in text.splitlines(keepends=True):
+        filled = _PLACEHOLDER.sub(one, line)
+        column = line.find("!-")
+        if filled != line and column > 0 and "!-" in filled:
+            # keep the field comments in their column, as the template has them
+            value, comment = filled.split("!-", 1)
+            filled = f"{value.rstrip():<{column - 1}} !-{comment}"
+        lines.append(filled)
+    return "".join(lines)
+
+
+def model_names(model: IdfModel) -> set[str]:
+    """Upper-case names of every named object of the model (any type)."""
+    return {o.name.upper() for o in model.objects if o.name}
+
+
+def free_name(base: str, taken: set[str]) -> str:
+    """``base``, or ``base_2``, ``base_3``, …: the first that is not in ``taken`` (upper case).
+
+    The name is added to ``taken``, so that names chosen one after another
+    differ too.
+    """
+    name, number = base, 1
+    while name.upper() in taken:
+        number += 1
+        name = f"{base}_{number}"
+    taken.add(name.upper())
+    return name
+
+
+@dataclass(frozen=True)
+class Snippet:
+    """A rendered extension: IDF text and the names it was given."""
+
+    text: str
+    zone: str
+    object_name: str
+    schedule_name: str
+    file_name: str | None
+
+
+def render_snippet(extension: Extension, model: IdfModel, zone: str,
+                   variant: int | None = None) -> Snippet:
+    """The extension's IDF objects for ``zone`` of ``model``.
+
+    Parameters
+    ----------
+    extension : Extension
+        Whose template (``bpsflow/extensions_idf``) is filled.
+    model : IdfModel
+        The model the objects are added to: the zone must be one of its
+        ``Zone`` objects, and the added names avoid every name it uses
+        (:func:`free_name`), whatever the object type.
+    zone : str
+        The zone the objects are written for.
+    variant : int, optional
+        Suffix ``_v<variant>`` on the object, schedule and CSV names, so that
+        several variants of one extension can sit in one model.
+
+    Raises
+    ------
+    BpsflowError
+        ``zone`` is not a zone of the model.
+    """
+    zones = {z.upper(): z for z in model_zones(model)}
+    if zone.strip().upper() not in zones:
+        raise BpsflowError(f"cannot write the {extension.name} extension for zone '{zone}': the "
+                           f"model has no such Zone (its zones: {', '.join(zones.values())})",
+                           source=model.path)
+    zone = zones[zone.strip().upper()]
     tag = "" if variant is None else f"_v{variant}"
+    taken = model_names(model)
+    object_name = free_name(extension.object_name + tag, taken)
+    schedule_name = free_name(extension.schedule_name + tag, taken)
+    file_name = None
+    if extension.schedule_file:
+        stem, suffix = extension.schedule_file.rsplit(".", 1)
+        file_name = f"{stem}{tag}.{suffix}"
+    text = fill_template(snippet_path(extension).read_text(),
+                         {"object": object_name, "zone": zone, "schedule": schedule_name,
+                          "file": file_name or ""})
+    return Snippet(text, zone, object_name, schedule_name, file_name)
+
+
+def new_parameters(extension: Extension, object_name: str, variant: int | None = None,
+                   zone: str | None = None) -> list[Parameter]:
+    """The extension's parameters as config parameters (uniform over the search range).
+
+    ``object_name`` is the rendered main object's name (:attr:`Snippet.object_name`).
+    """
+    tag = "" if variant is None else f"_v{variant}"
+    provenance = {"method": "bpsflow diagnose", "extension": extension.name, "nested_at": 0.0}
+    if zone is not None:
+        provenance["zone"] = zone
     return [Parameter(name=p.name + tag, group="extension", mode="absolute",
                       description=f"{p.description} ({p.unit}); added by bpsflow diagnose",
                       distribution=Uniform(type="uniform", lower=p.lower, upper=p.upper),
-                      targets=[IdfTarget(object=p.object, name=p.object_name + tag,
-                                         field=p.field)],
-                      provenance={"method": "bpsflow diagnose", "extension": extension.name,
-                                  "nested_at": 0.0, "reports_as": p.name})
+                      targets=[IdfTarget(object=p.object, name=object_name, field=p.field)],
+                      provenance={**provenance, "reports_as": p.name})
             for p in extension.parameters]
 
 
 def extend_config(config: Config, extension: Extension, directory: Path,
-                  schedule: pd.Series | None = None, variant: int | None = None) -> Config:
+                  schedule: pd.Series | None = None, variant: int | None = None, *,
+                  zone: str | None = None, output: str | None = None) -> Config:
     """A copy of ``config`` whose model includes ``extension`` (files in ``directory``).
+
+    The template is rendered (:func:`render_snippet`) against the model as it
+    is (``model.idf`` and its snippets so far) into
+    ``directory/<extension><suffix>.idf``, its CSV beside it.
 
     Parameters
     ----------
@@ -174,35 +430,251 @@ def extend_config(config: Config, extension: Extension, directory: Path,
         Suffix ``_v<variant>`` on the snippet's object, schedule, file and
         parameter names, so that several variants of one extension (e.g.
         gain schedules) can sit in one model and be fitted in one batch.
+    zone : str, optional
+        The zone the objects are written for (default: :func:`diagnosis_zone`
+        of ``config``, ``output`` and the extension).
+    output : str, optional
+        The diagnosed output, when ``zone`` is not given.
     """
+    from bpsflow.simulation.idf import model_objects
+
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    model = model_objects(config.model)
+    if zone is None:
+        zone = diagnosis_zone(config, output, extension.name, model)
+    rendered = render_snippet(extension, model, zone, variant)
     tag = "" if variant is None else f"_v{variant}"
-    text = snippet_path(extension).read_text()
-    renames = [(p.object_name, p.object_name + tag) for p in extension.parameters]
-    if extension.schedule_name:
-        renames.append((extension.schedule_name, extension.schedule_name + tag))
-    schedule_file = extension.schedule_file
-    if schedule_file and tag:
-        stem, suffix = schedule_file.rsplit(".", 1)
-        renames.append((schedule_file, f"{stem}{tag}.{suffix}"))
-        schedule_file = f"{stem}{tag}.{suffix}"
-    for old, new in renames:
-        text = text.replace(old, new)
     snippet = directory / extension.snippet.replace(".idf", f"{tag}.idf")
-    snippet.write_text(text)
-    if schedule_file is not None:
+    snippet.write_text(rendered.text)
+    if rendered.file_name is not None:
         if schedule is None:
             raise ValueError(f"extension {extension.name} needs its schedule values")
-        write_schedule(np.asarray(schedule, dtype=float), directory / schedule_file)
+        write_schedule(np.asarray(schedule, dtype=float), directory / rendered.file_name)
     extended = config.model_copy(deep=True)
     extended.source = config.source
     extended.model.idf_objects = [*config.model.idf_objects, snippet]
     names = {p.name for p in extended.parameters}
     extended.parameters = [*extended.parameters,
-                           *[p for p in new_parameters(extension, variant)
+                           *[p for p in new_parameters(extension, rendered.object_name, variant,
+                                                       rendered.zone)
                              if p.name not in names]]
     return extended
+
+
+# ---------------------------------------------------------------------------
+# Facades from the model geometry
+
+#: Detailed surface types: (zone, outside boundary condition, sun exposure, first
+#: vertex) field positions after the object type.
+_DETAILED = {"BUILDINGSURFACE:DETAILED": (3, 5, 7, 11), "WALL:DETAILED": (2, 4, 6, 10),
+             "ROOFCEILING:DETAILED": (2, 4, 6, 10), "FLOOR:DETAILED": (2, 4, 6, 10)}
+
+#: Simple rectangular exterior surfaces: (zone, azimuth, tilt, default tilt, length,
+#: height or width) field positions; they are always outdoors and sun-exposed.
+_SIMPLE = {"WALL:EXTERIOR": (2, 4, 5, 90.0, 9, 10), "ROOF": (2, 4, 5, 0.0, 9, 10)}
+
+
+def _surface_fields(model: IdfModel) -> list[tuple[IdfObject, int]]:
+    """Every surface of the model with the position of its zone field."""
+    out = []
+    for object_type, positions in {**_DETAILED, **_SIMPLE}.items():
+        out += [(o, positions[0]) for o in model.of_type(object_type)
+                if len(o.fields) > positions[0]]
+    return out
+
+
+@dataclass(frozen=True)
+class ExteriorSurface:
+    """A sun-exposed outdoor surface of a zone: true orientation and gross area.
+
+    ``tilt`` from horizontal (0 faces up, 90 vertical) and ``azimuth``
+    clockwise from true north of the outward normal, degrees (pvlib's
+    convention); ``area`` in m².
+    """
+
+    name: str
+    tilt: float
+    azimuth: float
+    area: float
+
+
+def _number(text: str, default: float) -> float:
+    try:
+        return float(text) if text.strip() else default
+    except ValueError:
+        return default
+
+
+def _field(obj: IdfObject, index: int) -> str:
+    return obj.fields[index].strip() if len(obj.fields) > index else ""
+
+
+def zone_exterior_surfaces(model: IdfModel, zone: str) -> list[ExteriorSurface]:
+    """The zone's sun-exposed surfaces to outdoors, oriented in true (compass) coordinates.
+
+    The outward normal of a detailed surface is Newell's normal of its
+    vertices, reversed when ``GlobalGeometryRules`` enters vertices
+    clockwise. With relative coordinates (the default) it is turned by the
+    zone's Direction of Relative North and the building's North Axis
+    (clockwise, degrees); with world coordinates EnergyPlus ignores both, and
+    so does this. ``Wall:Exterior`` and ``Roof`` give their azimuth and tilt
+    (``GlobalGeometryRules``' rectangular surface coordinate system).
+    """
+    rules = model.of_type("GLOBALGEOMETRYRULES")
+    rule = (lambda i: _field(rules[0], i).upper()) if rules else (lambda i: "")
+    clockwise = rule(1) == "CLOCKWISE"
+    buildings = model.of_type("BUILDING")
+    north_axis = _number(_field(buildings[0], 1), 0.0) if buildings else 0.0
+    zone_obj = next((z for z in model.of_type("ZONE") if z.name.upper() == zone.upper()), None)
+    relative_north = _number(_field(zone_obj, 1), 0.0) if zone_obj is not None else 0.0
+
+    def turn(system: str) -> float:
+        # "Absolute" is the IDD's other word for world coordinates
+        return 0.0 if system in ("WORLD", "ABSOLUTE") else north_axis + relative_north
+
+    out = []
+    for object_type, (zone_at, boundary_at, sun_at, vertex_at) in _DETAILED.items():
+        for obj in model.of_type(object_type):
+            if _field(obj, zone_at).upper() != zone.upper() \
+                    or _field(obj, boundary_at).upper() != "OUTDOORS" \
+                    or _field(obj, sun_at).upper() == "NOSUN":
+                continue
+            values = [float(v) for v in obj.fields[vertex_at:] if v.strip()]
+            points = [values[i:i + 3] for i in range(0, len(values) - 2, 3)]
+            normal = np.zeros(3)
+            for (x1, y1, z1), (x2, y2, z2) in zip(points, points[1:] + points[:1]):
+                normal += ((y1 - y2) * (z1 + z2), (z1 - z2) * (x1 + x2), (x1 - x2) * (y1 + y2))
+            length = float(np.linalg.norm(normal))
+            if length == 0.0:
+                continue
+            if clockwise:
+                normal = -normal
+            tilt = math.degrees(math.acos(max(-1.0, min(1.0, normal[2] / length))))
+            azimuth = math.degrees(math.atan2(normal[0], normal[1])) + turn(rule(2))
+            out.append(_oriented(obj.name, tilt, azimuth, length / 2.0))
+    for object_type, (zone_at, azimuth_at, tilt_at, tilt_default, a_at, b_at) in _SIMPLE.items():
+        for obj in model.of_type(object_type):
+            if _field(obj, zone_at).upper() != zone.upper():
+                continue
+            azimuth = _number(_field(obj, azimuth_at), 0.0) + turn(rule(4))
+            area = _number(_field(obj, a_at), 0.0) * _number(_field(obj, b_at), 0.0)
+            out.append(_oriented(obj.name, _number(_field(obj, tilt_at), tilt_default),
+                                 azimuth, area))
+    return out
+
+
+def _oriented(name: str, tilt: float, azimuth: float, area: float) -> ExteriorSurface:
+    # Rounded so that an axis-aligned wall gets exactly the compass plane (no
+    # 1e-14 noise between equal orientations, which are grouped).
+    return ExteriorSurface(name, round(tilt, 4), round(azimuth % 360.0, 4) % 360.0, area)
+
+
+def facade_class(tilt: float, azimuth: float) -> str | None:
+    """The facade a surface belongs to: ``roof`` (tilt below 45°), a compass quadrant, or None.
+
+    Walls are classed by the quadrant of their azimuth (``north`` 315–45°,
+    ``east`` 45–135°, ``south`` 135–225°, ``west`` 225–315°); a surface
+    tilted beyond 135° faces the ground and belongs to no facade.
+    """
+    if tilt < 45.0:
+        return "roof"
+    if tilt > 135.0:
+        return None
+    return ("north", "east", "south", "west")[int(((azimuth + 45.0) % 360.0) // 90.0)]
+
+
+def plane_irradiance(weather: Path, timestamps: pd.DatetimeIndex,
+                     planes: list[tuple[float, float]], albedo: float = 0.2) -> np.ndarray:
+    """Total irradiance on tilted planes over each hour, W/m², shape ``(n, len(planes))``.
+
+    The same sky as the facade drivers (:func:`bpsflow.diagnosis.drivers.incident_solar`):
+    pvlib's isotropic sky, the sun (SPA, apparent zenith) at the middle of
+    each hour, no beam with the sun below the horizon, so that a plane facing
+    a compass direction gets exactly that driver's values.
+
+    Parameters
+    ----------
+    weather : Path
+        EPW weather file.
+    timestamps : DatetimeIndex
+        Hour-ending timestamps, naive local standard time (any year: the
+        weather is read by month, day and hour).
+    planes : list of (tilt, azimuth)
+        Degrees; tilt from horizontal, azimuth clockwise from true north.
+    albedo : float
+        Ground reflectance (-).
+    """
+    import pvlib
+
+    from bpsflow.diagnosis.drivers import epw_location
+    from bpsflow.weather import epw_rows, read_epw
+
+    epw = read_epw(Path(weather))
+    location = epw_location(epw)
+    hour_starts = pd.DatetimeIndex(timestamps) - pd.Timedelta(hours=1)
+    rows = epw_rows(hour_starts, epw.n_hours)
+    ghi, dni, dhi = (epw.columns[c][rows] for c in ("global_horizontal_radiation",
+                                                     "direct_normal_radiation",
+                                                     "diffuse_horizontal_radiation"))
+    middles_utc = (hour_starts + pd.Timedelta(minutes=30)
+                   - pd.Timedelta(hours=location["time_zone"])).tz_localize("UTC")
+    sun = pvlib.solarposition.get_solarposition(middles_utc, location["latitude"],
+                                                location["longitude"],
+                                                altitude=location["elevation"])
+    zenith = sun["apparent_zenith"].to_numpy()
+    dni = np.where(zenith < 90.0, dni, 0.0)
+    out = np.zeros((len(hour_starts), len(planes)))
+    for j, (tilt, azimuth) in enumerate(planes):
+        total = pvlib.irradiance.get_total_irradiance(
+            tilt, azimuth, zenith, sun["azimuth"].to_numpy(), dni=dni, ghi=ghi, dhi=dhi,
+            albedo=albedo, model="isotropic")
+        out[:, j] = np.nan_to_num(np.asarray(total["poa_global"], dtype=float), nan=0.0)
+    return out
+
+
+def facade_irradiance(config: Config, zone: str, facade: str,
+                      model: IdfModel | None = None) -> tuple[pd.Series, dict]:
+    """Hourly irradiance on the zone's ``facade`` over the config's year, W/m².
+
+    The area-weighted mean over the zone's sun-exposed outdoor surfaces of
+    that facade (:func:`zone_exterior_surfaces`, :func:`facade_class`), each
+    at its own tilt and azimuth; the aperture's design level then stays "W
+    per W/m² incident on the facade". A zone with no such surface (e.g. the
+    wall is adiabatic or faces a neighbour) gets the compass plane of the
+    driver that named the facade (:data:`bpsflow.diagnosis.drivers.FACADES`):
+    the residuals follow that irradiance, whatever carries it.
+
+    Returns
+    -------
+    Series
+        8760 hour-ending values (:func:`year_hours`), W/m².
+    dict
+        ``facade``, ``zone``, ``surfaces`` (names, empty for the compass
+        plane) and ``planes`` (``tilt``, ``azimuth`` in degrees, ``area_m2``;
+        ``None`` for the compass plane), for the report.
+    """
+    from bpsflow.diagnosis.drivers import FACADES
+    from bpsflow.simulation.idf import model_objects
+
+    model = model if model is not None else model_objects(config.model)
+    stamps = year_hours(config.model.year)
+    surfaces = [s for s in zone_exterior_surfaces(model, zone)
+                if facade_class(s.tilt, s.azimuth) == facade]
+    areas: dict[tuple[float, float], float] = {}
+    for s in surfaces:
+        areas[(s.tilt, s.azimuth)] = areas.get((s.tilt, s.azimuth), 0.0) + s.area
+    if surfaces and sum(areas.values()) > 0:
+        planes = sorted(areas)
+        weights = np.array([areas[p] for p in planes])
+        values = plane_irradiance(config.model.weather, stamps, planes) @ (weights / weights.sum())
+        described = [{"tilt": t, "azimuth": a, "area_m2": areas[(t, a)]} for t, a in planes]
+    else:
+        values = plane_irradiance(config.model.weather, stamps, [FACADES[facade]])[:, 0]
+        described = None
+    return (pd.Series(values, index=stamps),
+            {"facade": facade, "zone": zone, "surfaces": [s.name for s in surfaces],
+             "planes": described})
 
 
 def write_schedule(values: np.ndarray, path: Path) -> Path:

@@ -8,55 +8,74 @@ original config and the measurement file: the effect is never named to it.
 The effects here are written as plain EnergyPlus objects, independently of
 the candidate extensions' snippets (e.g. the internal gain is a weekday
 ``Schedule:Compact``, which the candidate only approximates by a profile
-estimated from the residuals).
+estimated from the residuals). They act on the zone the matching candidate
+extension would be written for (:func:`bpsflow.diagnosis.extensions.diagnosis_zone`:
+``diagnosis.extension_zones`` or ``diagnosis.zone``, the diagnosed output's
+zone, the model's only zone), or on the zone given, so they fit any model;
+their object and schedule names (``bpsflow_hidden_<effect>…``) avoid the
+model's names.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
 from bpsflow.config import Config, load_config
+from bpsflow.diagnosis.extensions import NAME_PREFIX
+from bpsflow.errors import BpsflowError
 
-#: IDF text of each hidden effect; ``{value}`` is the effect's size.
+if TYPE_CHECKING:
+    from bpsflow.simulation.idf import IdfModel
+
+#: IDF template of each hidden effect. ``{value}`` is the effect's size; ``{zone}`` the
+#: zone it acts on; ``{object}`` and ``{schedule}`` the names of the added object and its
+#: schedule, and ``{file}`` the schedule's CSV (:func:`render_effect` fills them). The
+#: schedules are created here, never assumed to exist in the model.
 EFFECTS: dict[str, str] = {
     "wind_infiltration": """
 ZoneInfiltration:DesignFlowRate,
-    HiddenWindInfiltration, Cell, AlwaysOn, Flow/Zone,
-    {value},                 !- Design Flow Rate {{m3/s}} per m/s of wind
+    {object}, {zone}, {schedule}, Flow/Zone,
+    {value},                 !- Design Flow Rate {m3/s} per m/s of wind
     , , ,
     0, 0, 1, 0;              !- A, B, C (wind), D
+Schedule:Constant, {schedule}, , 1;
 """,
     "constant_infiltration": """
 ZoneInfiltration:DesignFlowRate,
-    HiddenLeak, Cell, AlwaysOn, Flow/Zone,
-    {value},                 !- Design Flow Rate {{m3/s}}
+    {object}, {zone}, {schedule}, Flow/Zone,
+    {value},                 !- Design Flow Rate {m3/s}
     , , ,
     1, 0, 0, 0;
+Schedule:Constant, {schedule}, , 1;
 """,
     "office_gain": """
 OtherEquipment,
-    HiddenOfficeGain, None, Cell, HiddenOfficeHours, EquipmentLevel,
-    {value},                 !- Design Level {{W}}
+    {object}, None, {zone}, {schedule}, EquipmentLevel,
+    {value},                 !- Design Level {W}
     , , 0, 0, 0;
 Schedule:Compact,
-    HiddenOfficeHours, ,
+    {schedule}, ,
     Through: 12/31,
     For: Weekdays, Until: 09:00, 0, Until: 17:00, 1, Until: 24:00, 0,
     For: AllOtherDays, Until: 24:00, 0;
 """,
     "east_aperture": """
 OtherEquipment,
-    HiddenEastAperture, None, Cell, HiddenEastIrradiance, EquipmentLevel,
-    {value},                 !- Design Level {{W}} per W/m2 (an aperture in m2)
+    {object}, None, {zone}, {schedule}, EquipmentLevel,
+    {value},                 !- Design Level {W} per W/m2 (an aperture in m2)
     , , 0, 0, 0;
 Schedule:File,
-    HiddenEastIrradiance, , hidden_east_irradiance.csv, 1, 0, 8760, Comma, No, 60, No;
+    {schedule}, , {file}, 1, 0, 8760, Comma, No, 60, No;
 """,
 }
+
+#: The CSV the east aperture's ``Schedule:File`` reads (written next to the snippet).
+EAST_IRRADIANCE_FILE = "hidden_east_irradiance.csv"
 
 #: The drivers a correct diagnosis may name for each effect, and the extension it must choose.
 EXPECTED: dict[str, tuple[tuple[str, ...], str]] = {
@@ -86,24 +105,65 @@ class HiddenCase:
     parameter_values: dict[str, float] = field(default_factory=dict)
 
 
+def render_effect(effect: str, value: float, model: IdfModel, zone: str) -> str:
+    """IDF text of the hidden ``effect`` of size ``value`` acting on ``zone`` of ``model``.
+
+    Parameters
+    ----------
+    effect : str
+        A key of :data:`EFFECTS`.
+    value : float
+        The effect's size, in the unit its template states (m³/s per m/s,
+        m³/s, W, or m² of aperture).
+    model : IdfModel
+        The model the objects are added to: ``zone`` must be one of its
+        zones, and the added names avoid all of its names.
+    zone : str
+        The zone the effect acts on.
+    """
+    from bpsflow.diagnosis.extensions import fill_template, free_name, model_names, model_zones
+
+    zones = {z.upper(): z for z in model_zones(model)}
+    if zone.strip().upper() not in zones:
+        raise BpsflowError(f"hidden effect {effect}: the model has no zone '{zone}' (its zones: "
+                           f"{', '.join(zones.values())})", source=model.path)
+    taken = model_names(model)
+    base = f"{NAME_PREFIX}hidden_{effect}"
+    return f"! hidden effect {effect}\n" + fill_template(EFFECTS[effect], {
+        "value": str(value), "zone": zones[zone.strip().upper()],
+        "object": free_name(base, taken), "schedule": free_name(f"{base}_schedule", taken),
+        "file": EAST_IRRADIANCE_FILE})
+
+
 def write_truth(base_config: Path, directory: Path, effect: str | None, value: float,
                 parameter_values: dict[str, float], *, seed: int, noise_bound: float = 0.03,
-                autocorrelation: float = 0.8, output: str = "heating_power_w") -> tuple[Path, Path]:
+                autocorrelation: float = 0.8, output: str = "heating_power_w",
+                zone: str | None = None) -> tuple[Path, Path]:
     """Write the truth config (base + hidden effect) and the synth truth file.
 
     ``noise_bound`` is 3 standard deviations of the relative sensor noise of
-    ``output``, AR(1) with lag-1 ``autocorrelation``.
+    ``output``, AR(1) with lag-1 ``autocorrelation``. The effect acts on
+    ``zone``, by default the zone the extension that should find it
+    (:data:`EXPECTED`) is written for (:func:`bpsflow.diagnosis.extensions.diagnosis_zone`
+    of the base config and ``output``).
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     raw: dict = {"extends": str(Path(base_config).resolve()),
                  "execution": {"run_dir": str(directory / "run")}}
     if effect is not None:
+        from bpsflow.diagnosis.extensions import diagnosis_zone
+        from bpsflow.simulation.idf import model_objects
+
+        config = load_config(base_config)
+        model = model_objects(config.model)
+        if zone is None:
+            zone = diagnosis_zone(config, output, EXPECTED[effect][1], model)
         snippet = directory / "hidden_effect.idf"
-        snippet.write_text(f"! hidden effect {effect}\n" + EFFECTS[effect].format(value=value))
+        snippet.write_text(render_effect(effect, value, model, zone))
         raw["model"] = {"idf_objects": [snippet.name]}
         if effect == "east_aperture":
-            _write_east_irradiance(load_config(base_config), directory)
+            _write_east_irradiance(config, directory)
     config_path = directory / "truth_config.yaml"
     config_path.write_text(yaml.safe_dump(raw, sort_keys=False))
     truth_path = directory / "truth_values.yaml"
@@ -115,24 +175,28 @@ def write_truth(base_config: Path, directory: Path, effect: str | None, value: f
 
 
 def _write_east_irradiance(config: Config, directory: Path) -> None:
+    """The hourly irradiance on a vertical plane facing true east (the driver's plane)."""
     from bpsflow.diagnosis.drivers import derive_drivers
     from bpsflow.diagnosis.extensions import write_schedule, year_hours
 
     east = derive_drivers(config.model.weather, year_hours(config.model.year))
-    write_schedule(east["incident_solar_east"].to_numpy(), directory / "hidden_east_irradiance.csv")
+    write_schedule(east["incident_solar_east"].to_numpy(), directory / EAST_IRRADIANCE_FILE)
 
 
 def make_case(base_config: Path, directory: Path, effect: str | None, value: float = 0.0,
               parameter_values: dict[str, float] | None = None, *, seed: int = 0,
               backend: str = "surrogate", noise_bound: float = 0.03,
-              autocorrelation: float = 0.8) -> HiddenCase:
-    """Write the truth model and synthesise its measurements (``directory/run/truth``)."""
+              autocorrelation: float = 0.8, zone: str | None = None) -> HiddenCase:
+    """Write the truth model and synthesise its measurements (``directory/run/truth``).
+
+    ``zone``: the zone the effect acts on (default: see :func:`write_truth`).
+    """
     from bpsflow.synth import load_truth, synthesize
 
     parameter_values = dict(parameter_values or {})
     config_path, truth_path = write_truth(base_config, directory, effect, value,
                                           parameter_values, seed=seed, noise_bound=noise_bound,
-                                          autocorrelation=autocorrelation)
+                                          autocorrelation=autocorrelation, zone=zone)
     config = load_config(config_path)
     truth = load_truth(truth_path, config)
     out = Path(directory) / "run" / "truth"

@@ -20,11 +20,42 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.diagnosis.drivers import DRIVER_UNITS
-from bpsflow.diagnosis.workflow import Diagnosis
+from bpsflow.diagnosis.workflow import Diagnosis, settings_of
 
 JSON_FILE = "diagnosis.json"
 MARKDOWN_FILE = "diagnosis.md"
 RESIDUALS_FILE = "residuals.csv"
+
+
+def untried_reason(d: Diagnosis) -> str | None:
+    """Why no candidate extension was tried for a ``model_form`` verdict (None if one was).
+
+    Either the extensions are switched off (``diagnosis.extensions: []``) or
+    none of the allowed ones answers the significant drivers (e.g. a measured
+    column no extension stands for).
+    """
+    if d.verdict != "model_form" or d.extensions or d.cause.get("extension"):
+        return None
+    allowed = list(settings_of(d.base.config).extensions)
+    if not allowed:
+        return "the candidate extensions are switched off (diagnosis.extensions is empty)"
+    return (f"none of diagnosis.extensions ({', '.join(allowed)}) answers the significant "
+            f"drivers")
+
+
+def cause_summary(d: Diagnosis) -> str:
+    """The cause's one sentence.
+
+    The workflow's sentence, except for a ``model_form`` verdict for which no
+    candidate extension was tried: "no candidate extension improved the
+    held-out accuracy" would claim a test that never ran, so it says that
+    none was tried, and why (:func:`untried_reason`).
+    """
+    reason = untried_reason(d)
+    if reason is None:
+        return d.cause.get("summary", "")
+    return (f"The residuals follow {d.cause.get('driver')} and no plausible change of an "
+            f"existing parameter explains them; no candidate extension was tried: {reason}.")
 
 
 def diagnosis_record(d: Diagnosis) -> dict:
@@ -32,7 +63,8 @@ def diagnosis_record(d: Diagnosis) -> dict:
     first = d.rounds[0] if d.rounds else {"drivers": []}
     return {
         "verdict": d.verdict,
-        "cause": {k: d.cause.get(k) for k in ("driver", "parameter", "extension", "summary")},
+        "cause": {**{k: d.cause.get(k) for k in ("driver", "parameter", "extension")},
+                  "summary": cause_summary(d)},
         "drivers": first["drivers"],
         "extensions": [{"name": e["name"], "fitted": e["fitted"], "heldout": e["heldout"],
                         "accepted": bool(e.get("accepted", False)),
@@ -54,8 +86,13 @@ def diagnosis_record(d: Diagnosis) -> dict:
 
 
 def write_diagnosis(d: Diagnosis, out_dir: Path) -> dict[str, Path]:
-    """Write JSON, residual table, figures and the markdown report; return their paths."""
+    """Write JSON, residual table, figures and the markdown report; return their paths.
+
+    ``d.cause["summary"]`` is set to :func:`cause_summary`, so that whoever
+    prints it after this says what the files say.
+    """
     out_dir = Path(out_dir)
+    d.cause["summary"] = cause_summary(d)
     figures = out_dir / "figures"
     figures.mkdir(parents=True, exist_ok=True)
     record = diagnosis_record(d)
@@ -196,7 +233,7 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
     """The short human report."""
     base, final = d.scorecard, d.final_scores
     lines = [f"# Diagnosis of {d.output}", "",
-             f"**Verdict: {d.verdict}.** {d.cause.get('summary', '')}", "",
+             f"**Verdict: {d.verdict}.** {record['cause']['summary']}", "",
              f"Backend {d.backend}; {record['hours']['calibration']} calibration hours, "
              f"{record['hours']['heldout']} held-out hours ({record['hours']['first']} – "
              f"{record['hours']['last']}); {d.seconds:.0f} s.", "",
@@ -237,13 +274,24 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
         for e in d.extensions:
             h = e["heldout"]
             lines.append(
-                f"| {e['round']} | {e['name']} | {e['driver']} | "
+                f"| {e['round']} | {_extension_label(e)} | {e['driver']} | "
                 f"{', '.join(f'{k} = {v:.4g}' for k, v in e['fitted'].items())} | "
                 f"{h['before']['cvrmse']:.2%} → {h['after']['cvrmse']:.2%} | "
                 f"{h['before']['nmcrps']:.2%} → {h['after']['nmcrps']:.2%} | "
                 f"{e['loss_difference']['p_value']:.2g} | {e['bic']['before']:.0f} → "
                 f"{e['bic']['after']:.0f} | {'**yes**' if e.get('accepted') else 'no'} |")
+    elif untried_reason(d) is not None:
+        lines += ["", "## Candidate extensions", "", f"None tried: {untried_reason(d)}."]
     lines += ["", "## Figures", ""]
     for name, path in figures.items():
         lines.append(f"![{name}]({path.as_posix()})")
     return "\n".join(lines) + "\n"
+
+
+def _extension_label(entry: dict) -> str:
+    """``name (zone Z)``, with the facade and its surfaces for a solar aperture."""
+    where = [f"zone {entry['zone']}"] if entry.get("zone") else []
+    if entry.get("facade"):
+        surfaces = ", ".join(entry.get("surfaces") or []) or "compass plane"
+        where.append(f"{entry['facade']} facade: {surfaces}")
+    return f"{entry['name']} ({'; '.join(where)})" if where else entry["name"]

@@ -11,7 +11,13 @@ config without the section diagnoses its first measured output::
       min_amplitude: 0.01         # ... and move the output by this fraction of its mean
       plausible_change: 0.5       # relative change of a fixed parameter still "plausible"
       extensions: [infiltration_wind, internal_gain_schedule, solar_aperture, envelope_ua]
+      zone: null                  # the zone the extensions are written for (see below)
+      extension_zones: {}         # per extension, e.g. {solar_aperture: Office_East}
       max_rounds: 3               # extend, re-diagnose, at most this many times
+
+``extensions: []`` switches the candidate extensions off: the diagnosis still
+tests the residuals and checks the existing parameters, and says that no
+extension was tried.
 """
 
 from __future__ import annotations
@@ -50,6 +56,17 @@ class DiagnosisSettings(BaseModel):
     ``gain_blocks``: how many on/off schedules of an internal gain are
     refitted (the shortlist of :func:`bpsflow.diagnosis.extensions.gain_blocks`).
 
+    ``zone`` and ``extension_zones``: the zone (``Zone`` object name) every
+    candidate extension's objects are written for, and per-extension
+    exceptions to it. Without them the zone is the one the diagnosed output
+    refers to (its ``key``: a zone name, e.g. for ``Zone Mean Air
+    Temperature``; a zone equipment name, e.g. a
+    ``ZoneHVAC:IdealLoadsAirSystem``, whose zone is found through
+    ``ZoneHVAC:EquipmentList`` and ``ZoneHVAC:EquipmentConnections``; a zone
+    air node, a space or a surface name), else the model's only zone; a
+    multi-zone model whose output names no zone needs ``zone``
+    (:func:`bpsflow.diagnosis.extensions.diagnosis_zone`).
+
     ``gain_alpha`` is the one-sided level of the held-out loss-difference
     test an extension must pass (besides a lower BIC and a lower held-out
     CV(RMSE)) to be accepted.
@@ -65,11 +82,12 @@ class DiagnosisSettings(BaseModel):
     min_amplitude: float = Field(default=0.01, ge=0)
     folds: int = Field(default=4, ge=2)
     plausible_change: float = Field(default=0.5, gt=0)
-    parameter_share: float = Field(default=0.5, gt=0, le=1)
     gain_alpha: float = Field(default=0.05, gt=0, lt=1)
     extensions: list[ExtensionName] = Field(
         default_factory=lambda: ["infiltration_wind", "internal_gain_schedule",
                                  "solar_aperture", "envelope_ua"])
+    zone: str | None = Field(default=None, min_length=1)
+    extension_zones: dict[ExtensionName, str] = Field(default_factory=dict)
     max_rounds: int = Field(default=3, ge=1)
     gain_blocks: int = Field(default=4, ge=1)
     parameter_candidates: int = Field(default=3, ge=1)

@@ -40,8 +40,8 @@ from bpsflow.config import Config, Parameter
 from bpsflow.diagnosis import comparison, structure
 from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (EXTENSIONS, block_profile, candidates_for,
-                                          extend_config, facade_of, gain_blocks,
-                                          profile_schedule, year_hours)
+                                          diagnosis_zone, extend_config, facade_irradiance,
+                                          facade_of, gain_blocks, profile_schedule)
 from bpsflow.diagnosis.fitting import (Fit, Problem, fit_many, output_simulator, parameter_range,
                                        predictive_ensemble, scores)
 from bpsflow.diagnosis.settings import DiagnosisSettings
@@ -456,24 +456,26 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     for index, (name, driver) in enumerate(candidates):
         extension = EXTENSIONS[name]
         directory = context.out_dir / "extensions" / f"round{round_number}_{name}"
-        options: list[tuple[pd.Series | None, dict, int | None]] = [(None, {}, None)]
+        zone = diagnosis_zone(config, d.output, name)
+        options: list[tuple[pd.Series | None, dict, int | None]] = [(None, {"zone": zone},
+                                                                     None)]
         if name == "internal_gain_schedule":
             blocks = gain_blocks(
                 pd.Series(residual[d.calibration], index=d.timestamps[d.calibration]),
                 output_sign(config, d.output),
                 fitted_jacobian=current.fit.jacobian[d.calibration],
                 count=context.settings.gain_blocks)
-            options = [(profile_schedule(profile, config.model.year), {"schedule": block},
+            options = [(profile_schedule(profile, config.model.year),
+                        {"schedule": block, "zone": zone},
                         number if len(blocks) > 1 else None)
                        for number, (profile, block) in enumerate(blocks, start=1)]
         elif name == "solar_aperture":
-            facade = facade_of(driver)
-            irradiance = derive_drivers(config.model.weather,
-                                        year_hours(config.model.year))[f"incident_solar_{facade}"]
-            options = [(irradiance, {"facade": facade}, None)]
+            # the irradiance on the zone's own facade (model geometry), not a fixed plane
+            irradiance, geometry = facade_irradiance(config, zone, facade_of(driver))
+            options = [(irradiance, geometry, None)]
         for schedule, detail, variant in options:
-            extended = extend_config(config, extension, directory, schedule, variant)
-            union = extend_config(union, extension, directory, schedule, variant)
+            extended = extend_config(config, extension, directory, schedule, variant, zone=zone)
+            union = extend_config(union, extension, directory, schedule, variant, zone=zone)
             known = {p.name for p in config.parameters}
             new = [p for p in extended.parameters if p.name not in known]
             variants.append((index, extended, new, detail))
@@ -558,8 +560,10 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
             schedule = profile_schedule(block_profile(kind, a, b), config.model.year)
             directory = (context.out_dir / "extensions"
                          / f"round{round_number}_internal_gain_schedule" / f"edge{step}")
-            variant = extend_config(config, extension, directory, schedule, number)
-            union = extend_config(union, extension, directory, schedule, number)
+            variant = extend_config(config, extension, directory, schedule, number,
+                                    zone=detail.get("zone"), output=d.output)
+            union = extend_config(union, extension, directory, schedule, number,
+                                  zone=detail.get("zone"), output=d.output)
             added = [p for p in variant.parameters if p.name not in
                      {q.name for q in config.parameters}]
             variants.append((variant, added, {"day_type": kind, "start_hour": a, "end_hour": b}))
