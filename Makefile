@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed
 JOBS   ?= 2
 DEMO_SAMPLES ?= 200
 
-.PHONY: install demo test bench study study-energyplus calibrate-demo diagnose-demo clean
+.PHONY: install demo test test-fast lint bench study study-energyplus calibrate-demo diagnose-demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,8 +28,19 @@ demo: $(STAMP)
 	$(BPS) run configs/i600.yaml --jobs $(JOBS) --measured runs/i600/truth/measured.csv
 	@echo "figures: runs/i600/figures/ (uncertainty band per test); results: runs/i600/results.parquet"
 
+# ruff, then mypy against its baseline (the error count per module may only shrink).
+lint: $(STAMP)
+	$(PY) -m ruff check bpsflow tests bench .ci
+	$(PY) -m mypy bpsflow | $(PY) .ci/mypy_baseline.py .ci/mypy-baseline.txt
+
 test: $(STAMP)
+	$(MAKE) lint
 	$(PY) -m pytest -q
+
+# Everything but the tests marked slow (end-to-end runs of a minute or more).
+test-fast: $(STAMP)
+	$(PY) -m ruff check bpsflow tests bench .ci
+	$(PY) -m pytest -q -m "not slow"
 
 bench: $(STAMP)
 	$(PY) bench/run_throughput.py --instances 200 --jobs $(JOBS)

@@ -30,9 +30,13 @@ sys.path.insert(0, str(HERE))
 from benchlib import WORK, record  # noqa: E402
 
 from bpsflow.config import load_config  # noqa: E402
-from bpsflow.energyplus import find_energyplus, idd_path, run_energyplus  # noqa: E402
-from bpsflow.instances import write_instance  # noqa: E402
 from bpsflow.sampling import read_samples  # noqa: E402
+from bpsflow.simulation.energyplus.engine import (  # noqa: E402
+    find_energyplus,
+    idd_path,
+    run_energyplus,
+)
+from bpsflow.simulation.energyplus.instances import write_instance  # noqa: E402
 
 
 def main() -> None:

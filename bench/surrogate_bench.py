@@ -38,7 +38,9 @@ from benchlib import record, work_root  # noqa: E402
 from bpsflow.boundary import draw_sequences, period_hours, write_sequences  # noqa: E402
 from bpsflow.config import load_config, test_dates  # noqa: E402
 from bpsflow.sampling import sample, write_design  # noqa: E402
-from bpsflow.surrogate import run_surrogate, simulate_instances  # noqa: E402
+from bpsflow.simulation.backend import get_backend  # noqa: E402
+from bpsflow.simulation.ensemble import run_config, run_ensemble  # noqa: E402
+from bpsflow.surrogate.run import simulate_instances  # noqa: E402
 
 
 def _design(config, run_dir: Path, samples: int) -> pd.DataFrame:
@@ -107,12 +109,11 @@ def main() -> None:
             ep_dir = args.energyplus_run.resolve()
             samples = pd.read_parquet(ep_dir / "samples.parquet").set_index("instance")
         else:
-            from bpsflow.runner import run
-
             ep_dir = tmp / "energyplus"
             samples = _design(config, ep_dir, args.fidelity_instances)
             print(f"running {len(samples)} instances on EnergyPlus in {ep_dir}")
-            run(config, samples, jobs=args.jobs, show_progress=True, backend="energyplus")
+            run_ensemble(run_config(config, ep_dir), samples, get_backend("energyplus"),
+                         jobs=args.jobs, show_progress=True)
         energyplus = pd.read_parquet(ep_dir / "results.parquet")
         manifest = pd.read_parquet(ep_dir / "manifest.parquet")
         ok = manifest[manifest.status == "ok"]
@@ -146,7 +147,8 @@ def main() -> None:
         run_dir = tmp / "speed"
         samples = _design(config, run_dir, args.instances)
         started = time.perf_counter()
-        summary = run_surrogate(config, samples, run_dir, show_progress=True, jobs=args.jobs)
+        summary = run_ensemble(run_config(config, run_dir), samples, get_backend("surrogate"),
+                               jobs=args.jobs, show_progress=True)
         seconds = time.perf_counter() - started
         assert summary.ok == args.instances, summary
         surrogate_core = seconds * args.jobs / args.instances
