@@ -36,13 +36,14 @@ configure_jax(4)
 import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 
-from benchlib import record, scratch  # noqa: E402
 from bpsflow.calibration.command import apply_overrides, calibrate  # noqa: E402
 from bpsflow.calibration.design import calibration_parameters, unit_to_values  # noqa: E402
 from bpsflow.calibration.report import parameter_table  # noqa: E402
 from bpsflow.calibration.workflow import settings_of  # noqa: E402
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.synth import Truth, load_truth, synthesize  # noqa: E402
+
+from benchlib import record, scratch  # noqa: E402
 
 CONFIG = ROOT / "configs" / "calibration.yaml"
 TRUTH = ROOT / "configs" / "calibration_truth.yaml"

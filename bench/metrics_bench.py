@@ -35,9 +35,9 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from benchlib import record  # noqa: E402
-
 from bpsflow.metrics import crps_ensemble  # noqa: E402
+
+from benchlib import record  # noqa: E402
 
 AGREEMENT_ABS = 1e-9  # °C
 PAIR_BLOCK_ROWS = 500

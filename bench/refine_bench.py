@@ -28,11 +28,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
-from benchlib import record, work_root  # noqa: E402
-
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.refine import refine, write_refinement  # noqa: E402
 from bpsflow.synth import Truth, load_truth, synthesize  # noqa: E402
+
+from benchlib import record, work_root  # noqa: E402
 
 #: Inputs that detailed measurements refine (seed §3.5); the truths vary these.
 REFINED = ("wall_stack_coefficient", "wall_stack_exponent", "ceiling_stack_coefficient",

@@ -27,8 +27,6 @@ import pandas as pd
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
-from benchlib import WORK, record  # noqa: E402
-
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.sampling import read_samples  # noqa: E402
 from bpsflow.simulation.energyplus.engine import (  # noqa: E402
@@ -37,6 +35,8 @@ from bpsflow.simulation.energyplus.engine import (  # noqa: E402
     run_energyplus,
 )
 from bpsflow.simulation.energyplus.instances import write_instance  # noqa: E402
+
+from benchlib import WORK, record  # noqa: E402
 
 
 def main() -> None:

@@ -33,14 +33,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from benchlib import record, work_root  # noqa: E402
-
 from bpsflow.boundary import draw_sequences, period_hours, write_sequences  # noqa: E402
 from bpsflow.config import load_config, test_dates  # noqa: E402
 from bpsflow.sampling import sample, write_design  # noqa: E402
 from bpsflow.simulation.backend import get_backend  # noqa: E402
 from bpsflow.simulation.ensemble import run_config, run_ensemble  # noqa: E402
 from bpsflow.surrogate.run import simulate_instances  # noqa: E402
+
+from benchlib import record, work_root  # noqa: E402
 
 
 def _design(config, run_dir: Path, samples: int) -> pd.DataFrame:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import functools
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 import yaml
@@ -42,7 +41,7 @@ def _friendly(func):
     return wrapper
 
 
-def _load(config: Path, run_dir: Optional[Path]):
+def _load(config: Path, run_dir: Path | None):
     from bpsflow.config import load_config
 
     overrides = {"execution": {"run_dir": str(run_dir.resolve())}} if run_dir else None
@@ -64,9 +63,9 @@ NoProgressOption = typer.Option(False, help="No progress bars.")
 
 @app.command()
 @_friendly
-def sample(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
-           samples: Optional[int] = typer.Option(None, help="Override design.samples."),
-           seed: Optional[int] = typer.Option(None, help="Override design.seed."),
+def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
+           samples: int | None = typer.Option(None, help="Override design.samples."),
+           seed: int | None = typer.Option(None, help="Override design.seed."),
            force: bool = typer.Option(False, help="Discard instances already run in the run "
                                                   "directory and draw a new design.")) -> None:
     """Draw the design (LHS or Morris) and write samples.parquet."""
@@ -92,7 +91,8 @@ def sample(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
 
 def _sample(cfg) -> Path:
     from bpsflow.boundary import SEQUENCES_FILE, draw_sequences, period_hours, write_sequences
-    from bpsflow.sampling import sample as draw, write_design
+    from bpsflow.sampling import sample as draw
+    from bpsflow.sampling import write_design
 
     design = draw(cfg)
     run_dir = cfg.run_dir.resolve()
@@ -108,7 +108,7 @@ def _sample(cfg) -> Path:
 @app.command()
 @_friendly
 def check(config: Path = ConfigArg,
-          backend: Optional[str] = BackendOption) -> None:
+          backend: str | None = BackendOption) -> None:
     """Validate the config, every IDF target and the thermostats against the model; nothing runs."""
     from bpsflow.simulation.backend import choose_backend
 
@@ -126,7 +126,7 @@ def check(config: Path = ConfigArg,
         err_console.print(f"[yellow]{note}[/yellow]", highlight=False)
 
 
-def _set_backend(cfg, backend: Optional[str]) -> None:
+def _set_backend(cfg, backend: str | None) -> None:
     if backend is not None:
         if backend not in ("energyplus", "surrogate", "auto"):
             raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got '{backend}'")
@@ -135,10 +135,10 @@ def _set_backend(cfg, backend: Optional[str]) -> None:
 
 @app.command()
 @_friendly
-def instances(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
+def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
               instance: list[int] = typer.Option([0], "--instance", "-i",
                                                  help="Instance(s) to write."),
-              out: Optional[Path] = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
+              out: Path | None = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
     """Write instance inputs (IDF per period, weather, boundary data) without running them."""
     from bpsflow.sampling import read_samples
     from bpsflow.simulation.backend import choose_backend
@@ -156,12 +156,12 @@ def instances(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
 
 @app.command()
 @_friendly
-def run(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
-        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
+def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
+        jobs: int | None = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
         retry_failed: bool = typer.Option(False, help="Run failed instances again."),
         keep_inputs: bool = typer.Option(False, help="Keep instance IDF/EPW/CSV files."),
-        backend: Optional[str] = typer.Option(None, help="Override model.backend."),
-        measured: Optional[Path] = typer.Option(None, help="Measured data to draw in the figures."),
+        backend: str | None = typer.Option(None, help="Override model.backend."),
+        measured: Path | None = typer.Option(None, help="Measured data to draw in the figures."),
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Run every instance (sampling first if needed); resume skips finished instances."""
     from bpsflow.plots import band_summary, plot_bands
@@ -212,9 +212,9 @@ def run(config: Path = ConfigArg, run_dir: Optional[Path] = RunDirOption,
 @_friendly
 def synth(config: Path = ConfigArg,
           truth: Path = typer.Option(..., help="YAML with the true parameter values and noise."),
-          out: Optional[Path] = typer.Option(None, help="Output folder (default RUN_DIR/truth)."),
-          run_dir: Optional[Path] = RunDirOption,
-          backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+          out: Path | None = typer.Option(None, help="Output folder (default RUN_DIR/truth)."),
+          run_dir: Path | None = RunDirOption,
+          backend: str | None = typer.Option(None, help="Override model.backend."),
           detailed: bool = typer.Option(False, "--detailed", help="Also write detailed "
                                         "measurements (detailed.csv, sensor_calibration.csv, "
                                         "detailed.json; seed §3.4.3-3.5).")) -> None:
@@ -239,15 +239,16 @@ def synth(config: Path = ConfigArg,
 @_friendly
 def validate(config: Path = ConfigArg,
              measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
-             invalid: Optional[Path] = typer.Option(None, help="Run directory of an ensemble "
+             invalid: Path | None = typer.Option(None, help="Run directory of an ensemble "
                                                     "treated as invalid predictions (e.g. the baseline)."),
-             q: Optional[float] = typer.Option(None, help="Override validation.q."),
-             run_dir: Optional[Path] = RunDirOption) -> None:
+             q: float | None = typer.Option(None, help="Override validation.q."),
+             run_dir: Path | None = RunDirOption) -> None:
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
     from bpsflow.plots import plot_bands
     from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
-    from bpsflow.validation import validate as run_validation, write_outputs
+    from bpsflow.validation import validate as run_validation
+    from bpsflow.validation import write_outputs
 
     cfg = _load(config, run_dir)
     if q is not None:
@@ -292,26 +293,26 @@ def validate(config: Path = ConfigArg,
 @_friendly
 def sensitivity(
         config: Path = ConfigArg,
-        measured: Optional[Path] = typer.Option(
+        measured: Path | None = typer.Option(
             None, help="Measured data (timestamp + output columns); needed by --response "
                        "difference|absolute."),
-        response: Optional[str] = typer.Option(
+        response: str | None = typer.Option(
             None, help="difference (prediction - measurement, the source's response; default "
                        "with --measured), absolute (|prediction - measurement|) or raw (the "
                        "prediction; default without --measured), each averaged over a test's "
                        "evaluated days."),
         top: int = typer.Option(20, help="Inputs shown per response (ranked by mu*)."),
-        trajectories: Optional[int] = typer.Option(None, help="Override design.trajectories."),
-        levels: Optional[int] = typer.Option(None, help="Override design.levels (even)."),
-        jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
-        backend: Optional[str] = typer.Option(None, help="Override model.backend."),
+        trajectories: int | None = typer.Option(None, help="Override design.trajectories."),
+        levels: int | None = typer.Option(None, help="Override design.levels (even)."),
+        jobs: int | None = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
+        backend: str | None = typer.Option(None, help="Override model.backend."),
         groups: bool = typer.Option(False, "--groups", help="Also print mu* summed per "
                                                            "parameter group."),
-        screen: Optional[int] = typer.Option(None, help="Write a reduced config keeping the top "
+        screen: int | None = typer.Option(None, help="Write a reduced config keeping the top "
                                              "N inputs of each response, the others fixed."),
-        screen_out: Optional[Path] = typer.Option(None, help="Where --screen writes (default "
+        screen_out: Path | None = typer.Option(None, help="Where --screen writes (default "
                                                   "<config stem>_screened.yaml beside CONFIG)."),
-        run_dir: Optional[Path] = RunDirOption,
+        run_dir: Path | None = RunDirOption,
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
@@ -400,13 +401,14 @@ def sensitivity(
 def refine(config: Path = ConfigArg,
            detailed: Path = typer.Option(..., help="detailed.csv (or its folder), with "
                                          "sensor_calibration.csv and detailed.json beside it."),
-           out: Optional[Path] = typer.Option(None, help="Output folder (default RUN_DIR/refine)."),
-           refined_config: Optional[Path] = typer.Option(
+           out: Path | None = typer.Option(None, help="Output folder (default RUN_DIR/refine)."),
+           refined_config: Path | None = typer.Option(
                None, "--refined-config", help="Where to write the refined config (default "
                                               "OUT/refined.yaml); its data files go beside it."),
-           run_dir: Optional[Path] = RunDirOption) -> None:
+           run_dir: Path | None = RunDirOption) -> None:
     """Refine input distributions from detailed measurements (seed §3.4.3-3.5)."""
-    from bpsflow.refine import interval_table, refine as run_refine, write_refinement
+    from bpsflow.refine import interval_table, write_refinement
+    from bpsflow.refine import refine as run_refine
 
     cfg = _load(config, run_dir)
     out = (out or cfg.run_dir.resolve() / "refine").resolve()
@@ -444,27 +446,28 @@ def calibrate(config: Path = ConfigArg,
                                          "deterministic baseline runs too) or deterministic."),
               scenarios: bool = typer.Option(False, "--scenarios", help="Run every scenario of "
                                              "calibration.scenarios and compare them."),
-              outputs: Optional[str] = typer.Option(None, help="Override calibration.outputs "
+              outputs: str | None = typer.Option(None, help="Override calibration.outputs "
                                                     "(comma-separated)."),
-              resolution: Optional[str] = typer.Option(None, help="Override calibration."
+              resolution: str | None = typer.Option(None, help="Override calibration."
                                                        "resolution: daily or hourly."),
-              chains: Optional[int] = typer.Option(None, help="Override calibration.bayes.chains."),
-              warmup: Optional[int] = typer.Option(None, help="Override calibration.bayes.warmup."),
-              samples: Optional[int] = typer.Option(None, help="Override calibration.bayes.samples."),
-              runs: Optional[int] = typer.Option(None, help="Override calibration.design.runs."),
-              truth: Optional[Path] = typer.Option(None, help="True parameter values (synth's "
+              chains: int | None = typer.Option(None, help="Override calibration.bayes.chains."),
+              warmup: int | None = typer.Option(None, help="Override calibration.bayes.warmup."),
+              samples: int | None = typer.Option(None, help="Override calibration.bayes.samples."),
+              runs: int | None = typer.Option(None, help="Override calibration.design.runs."),
+              truth: Path | None = typer.Option(None, help="True parameter values (synth's "
                                                    "truth.json): report whether 90 % intervals "
                                                    "cover them."),
               allow_unconverged: bool = typer.Option(False, help="Exit 0 even when NUTS has not "
                                                      "converged (R-hat, ESS, divergences)."),
-              out: Optional[Path] = typer.Option(None, help="Output folder (default "
+              out: Path | None = typer.Option(None, help="Output folder (default "
                                                  "RUN_DIR/calibration)."),
-              backend: Optional[str] = BackendOption,
-              jobs: Optional[int] = JobsOption,
-              run_dir: Optional[Path] = RunDirOption,
+              backend: str | None = BackendOption,
+              jobs: int | None = JobsOption,
+              run_dir: Path | None = RunDirOption,
               no_progress: bool = NoProgressOption) -> None:
     """Calibrate to measured data (Kennedy-O'Hagan or deterministic); test on held-out days."""
-    from bpsflow.calibration.command import apply_overrides, calibrate as run_calibration
+    from bpsflow.calibration.command import apply_overrides
+    from bpsflow.calibration.command import calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
 
     cfg = _load(config, run_dir)
@@ -489,11 +492,11 @@ def calibrate(config: Path = ConfigArg,
 @_friendly
 def diagnose(config: Path = ConfigArg,
              measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
-             out: Optional[Path] = typer.Option(None, help="Output folder (default "
+             out: Path | None = typer.Option(None, help="Output folder (default "
                                                 "RUN_DIR/diagnosis)."),
-             backend: Optional[str] = BackendOption,
-             jobs: Optional[int] = JobsOption,
-             run_dir: Optional[Path] = RunDirOption,
+             backend: str | None = BackendOption,
+             jobs: int | None = JobsOption,
+             run_dir: Path | None = RunDirOption,
              no_progress: bool = NoProgressOption) -> None:
     """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
     from bpsflow.diagnosis.command import run_diagnose

@@ -26,11 +26,19 @@ import os
 import re
 from datetime import date, timedelta
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError,
-                      field_validator, model_validator)
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from bpsflow.calibration.settings import CalibrationSettings
 from bpsflow.diagnosis.settings import DiagnosisSettings
@@ -85,8 +93,9 @@ def _target_kind(value: Any) -> str:
 
 
 Target = Annotated[
-    Union[Annotated[IdfTarget, Tag("target:idf")], Annotated[WeatherTarget, Tag("target:weather")],
-          Annotated[BoundaryTarget, Tag("target:boundary")]],
+    Annotated[IdfTarget, Tag("target:idf")]
+    | Annotated[WeatherTarget, Tag("target:weather")]
+    | Annotated[BoundaryTarget, Tag("target:boundary")],
     Discriminator(_target_kind),
 ]
 
@@ -105,7 +114,7 @@ class Parameter(_Strict):
     source file, estimates); free-form, carried through to written configs."""
 
     @model_validator(mode="after")
-    def _check(self) -> "Parameter":
+    def _check(self) -> Parameter:
         kinds = {type(t) for t in self.targets}
         if BoundaryTarget in kinds:
             if kinds != {BoundaryTarget}:
@@ -160,7 +169,7 @@ class Test(_Strict):
         return value
 
     @model_validator(mode="after")
-    def _check(self) -> "Test":
+    def _check(self) -> Test:
         if self.mode != "free_floating" and self.setpoint_c is None:
             raise ValueError(f"a {self.mode} test needs setpoint_c (°C)")
         if self.warmup_days >= self.days:
@@ -245,7 +254,7 @@ class OutputVariable(_Strict):
     frequency: Literal["hourly", "timestep"] = "hourly"
 
     @model_validator(mode="after")
-    def _one_source(self) -> "OutputVariable":
+    def _one_source(self) -> OutputVariable:
         if (self.variable is None) == (self.meter is None):
             raise ValueError("give either 'variable' (with 'key') or 'meter'")
         if self.variable is not None and not self.key:
@@ -309,7 +318,7 @@ class Config(_Strict):
         return outputs
 
     @model_validator(mode="after")
-    def _cross_check(self) -> "Config":
+    def _cross_check(self) -> Config:
         _unique([p.name for p in self.parameters], "parameters")
         _unique([p.name for p in self.model.periods], "model.periods")
         _unique([t.name for t in self.model.tests], "model.tests")

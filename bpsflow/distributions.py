@@ -15,7 +15,7 @@ The ``type`` key selects the distribution in YAML::
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -46,7 +46,7 @@ class Uniform(_Distribution):
     upper: float
 
     @model_validator(mode="after")
-    def _check(self) -> "Uniform":
+    def _check(self) -> Uniform:
         if not self.upper > self.lower:
             raise ValueError(f"upper ({self.upper}) must be greater than lower ({self.lower})")
         return self
@@ -72,7 +72,7 @@ class Normal(_Distribution):
     upper: float | None = None
 
     @model_validator(mode="after")
-    def _check(self) -> "Normal":
+    def _check(self) -> Normal:
         lo = -np.inf if self.lower is None else self.lower
         hi = np.inf if self.upper is None else self.upper
         if not hi > lo:
@@ -134,7 +134,7 @@ class Triangular(_Distribution):
     upper: float
 
     @model_validator(mode="after")
-    def _check(self) -> "Triangular":
+    def _check(self) -> Triangular:
         if not (self.lower <= self.mode <= self.upper and self.upper > self.lower):
             raise ValueError(
                 f"expected lower <= mode <= upper with lower < upper, got "
@@ -158,7 +158,7 @@ class Discrete(_Distribution):
     weights: list[float] | None = None
 
     @model_validator(mode="after")
-    def _check(self) -> "Discrete":
+    def _check(self) -> Discrete:
         if self.weights is not None:
             if len(self.weights) != len(self.values):
                 raise ValueError(
@@ -195,10 +195,11 @@ class Empirical(_Distribution):
     column: str | None = None
     values_: tuple[float, ...] = Field(default=(), exclude=True)
 
-    def load(self, base_dir: Path) -> "Empirical":
+    def load(self, base_dir: Path) -> Empirical:
         """Return a copy with the values read from ``file`` (relative to ``base_dir``)."""
-        from bpsflow.errors import BpsflowError
         import pandas as pd
+
+        from bpsflow.errors import BpsflowError
 
         path = self.file if self.file.is_absolute() else base_dir / self.file
         if not path.is_file():
@@ -267,6 +268,6 @@ class Constant(_Distribution):
 
 
 Distribution = Annotated[
-    Union[Uniform, Normal, Beta, LogNormal, Triangular, Discrete, Empirical, Sampler, Constant],
+    Uniform | Normal | Beta | LogNormal | Triangular | Discrete | Empirical | Sampler | Constant,
     Field(discriminator="type"),
 ]

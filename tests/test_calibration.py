@@ -21,8 +21,13 @@ from typer.testing import CliRunner
 from bpsflow.calibration import bayes
 from bpsflow.calibration.deterministic import calibrate as deterministic_calibrate
 from bpsflow.calibration.deterministic import objective
-from bpsflow.calibration.emulator import (GridEmulator, Hyperparameters, fit_emulator,
-                                          squared_exponential, standardise_unit)
+from bpsflow.calibration.emulator import (
+    GridEmulator,
+    Hyperparameters,
+    fit_emulator,
+    squared_exponential,
+    standardise_unit,
+)
 from bpsflow.calibration.settings import BayesSettings, DeterministicSettings
 from bpsflow.cli import app
 from bpsflow.sampling import latin_hypercube_unit
@@ -154,7 +159,7 @@ def test_credible_intervals_cover_at_their_nominal_rate():
     xs = emulator.grid.x[obs_rows]
     d2 = (xs - xs.T) ** 2
     covered90 = covered50 = total = 0
-    for trial in range(12):
+    for _trial in range(12):
         u_true = rng.uniform(size=2)
         sd_delta = np.exp(rng.normal(np.log(0.2), 0.5))
         lengthscale = np.exp(rng.normal(0.0, 0.75))

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import copy
-
 import pytest
 from typer.testing import CliRunner
 
@@ -47,7 +45,7 @@ def test_inverted_uniform_bounds_are_rejected(tmp_path):
     index = next(i for i, p in enumerate(raw["parameters"]) if p["name"] == "ground_reflectance")
     raw["parameters"][index]["distribution"].update(lower=0.4, upper=0.1)
     message = _error(tmp_path, raw)
-    assert "parameters[%d] (ground_reflectance).distribution" % index in message
+    assert f"parameters[{index}] (ground_reflectance).distribution" in message
     assert "upper (0.1) must be greater than lower (0.4)" in message
 
 

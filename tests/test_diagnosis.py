@@ -324,8 +324,7 @@ def test_rendered_snippets_parse_name_the_zone_and_create_their_schedule(tmp_pat
     """Every template, rendered for the zone of an ideal loads key, is IDF the model accepts."""
     from types import SimpleNamespace
 
-    from bpsflow.diagnosis.extensions import (EXTENSIONS, diagnosis_zone, model_names,
-                                              render_snippet)
+    from bpsflow.diagnosis.extensions import EXTENSIONS, diagnosis_zone, model_names, render_snippet
     from bpsflow.simulation.idf import model_objects, parse_idf_text
 
     base = tmp_path / "two_zones.idf"
@@ -333,7 +332,7 @@ def test_rendered_snippets_parse_name_the_zone_and_create_their_schedule(tmp_pat
     model = parse_idf_text(TWO_ZONES, base)
     zone = diagnosis_zone(_stub_config("East Ideal Loads"), "heating_w", model=model)
     files = []
-    for name, extension in EXTENSIONS.items():
+    for extension in EXTENSIONS.values():
         rendered = render_snippet(extension, model, zone, variant=None)
         assert not re.search(r"\{[a-z_]+\}", rendered.text)     # every placeholder filled
         parsed = parse_idf_text(rendered.text)
@@ -453,8 +452,13 @@ def test_solar_aperture_irradiance_is_the_zone_facade_from_geometry(tmp_path):
     from types import SimpleNamespace
 
     from bpsflow.diagnosis.drivers import derive_drivers
-    from bpsflow.diagnosis.extensions import (facade_class, facade_irradiance, plane_irradiance,
-                                              year_hours, zone_exterior_surfaces)
+    from bpsflow.diagnosis.extensions import (
+        facade_class,
+        facade_irradiance,
+        plane_irradiance,
+        year_hours,
+        zone_exterior_surfaces,
+    )
     from bpsflow.simulation.idf import model_objects, parse_idf_text
 
     config = load_config(DIAGNOSIS)

@@ -9,12 +9,12 @@ from typer.testing import CliRunner
 
 from bpsflow.cli import app
 from bpsflow.config import load_config
+from bpsflow.sampling import read_samples
 from bpsflow.simulation.backend import get_backend
 from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
 from bpsflow.simulation.energyplus.instances import open_idf, write_instance
 from bpsflow.simulation.ensemble import run_ensemble
 from bpsflow.simulation.rundir import read_manifest, read_results
-from bpsflow.sampling import read_samples
 
 from conftest import short_raw, write_config
 

@@ -7,7 +7,12 @@ import pytest
 
 from bpsflow.boundary import draw_sequences, period_hours, read_boundary_file
 from bpsflow.config import load_config
-from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints, setpoint_schedules
+from bpsflow.simulation.setpoints import (
+    COOLING_OFF_C,
+    HEATING_OFF_C,
+    day_setpoints,
+    setpoint_schedules,
+)
 from bpsflow.weather import perturb, read_epw, write_epw
 
 

@@ -19,12 +19,12 @@ import yaml
 
 from bpsflow.config import load_config
 from bpsflow.errors import BpsflowError
-from bpsflow.surrogate.run import simulate_instances
+from bpsflow.simulation.idf import model_objects, model_text, parse_idf_text
 from bpsflow.surrogate.cell import build_cell, wind_factor, zone_centroid_height
 from bpsflow.surrogate.forcing import constant_forcing, period_forcing
-from bpsflow.simulation.idf import model_objects, model_text, parse_idf_text
 from bpsflow.surrogate.network import build_network, simulate
 from bpsflow.surrogate.params import field_values, sample_columns
+from bpsflow.surrogate.run import simulate_instances
 from bpsflow.surrogate.schedules import read_schedule
 from bpsflow.synth import Noise, add_noise, ar1_noise
 

@@ -13,7 +13,6 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import ROOT
 from typer.testing import CliRunner
 
 from bpsflow.cli import app
@@ -21,6 +20,8 @@ from bpsflow.config import load_config
 from bpsflow.simulation.backend import get_backend
 from bpsflow.simulation.ensemble import simulate_samples
 from bpsflow.simulation.rundir import read_results
+
+from conftest import ROOT
 
 pytestmark = pytest.mark.energyplus
 runner = CliRunner()

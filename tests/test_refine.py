@@ -27,6 +27,7 @@ from bpsflow.refine.inputs import hour_of_year_rows
 from bpsflow.refine.parameters import class_surfaces
 from bpsflow.sampling import sample
 from bpsflow.simulation.idf import parse_idf_text, read_idf
+
 from conftest import ROOT, i600_raw, write_config
 
 SIGMA_M = contract.REFERENCE_STD_C   # reference sensor, °C (seed Table 3.2, range = 3 std)

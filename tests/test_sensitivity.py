@@ -10,13 +10,22 @@ from typer.testing import CliRunner
 
 from bpsflow.alignment import evaluation_hours
 from bpsflow.cli import app
-from bpsflow.config import load_config, test_dates as dates_of_test
+from bpsflow.config import load_config
+from bpsflow.config import test_dates as dates_of_test
 from bpsflow.distributions import Constant
 from bpsflow.errors import BpsflowError
 from bpsflow.sampling import latin_hypercube_unit, morris_unit, sample
-from bpsflow.sensitivity import (GROUP_COLUMNS, INDEX_COLUMNS, grid_from_unit, morris_config,
-                                 morris_design, morris_indices, prepare_morris, window_responses,
-                                 write_screened_config)
+from bpsflow.sensitivity import (
+    GROUP_COLUMNS,
+    INDEX_COLUMNS,
+    grid_from_unit,
+    morris_config,
+    morris_design,
+    morris_indices,
+    prepare_morris,
+    window_responses,
+    write_screened_config,
+)
 
 from conftest import short_raw, write_config
 

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, short_raw, write_config
 from toy_backend import ToyBackend, toy_value
 
 from bpsflow.config import load_config
@@ -21,6 +20,8 @@ from bpsflow.simulation.ensemble import run_ensemble, simulate_samples
 from bpsflow.simulation.executor import LocalExecutor
 from bpsflow.simulation.idf import parse_idf_text
 from bpsflow.simulation.setpoints import thermostat_plan
+
+from conftest import ROOT, short_raw, write_config
 
 
 def toy_config(tmp_path: Path, samples: int = 6):

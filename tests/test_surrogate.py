@@ -9,12 +9,12 @@ import pandas as pd
 import pytest
 
 from bpsflow.config import load_config
-from bpsflow.surrogate.run import ignored_targets, simulate_instances
+from bpsflow.simulation.idf import polygon_area, read_idf
 from bpsflow.surrogate.cell import build_cell
 from bpsflow.surrogate.forcing import constant_forcing
-from bpsflow.simulation.idf import polygon_area, read_idf
 from bpsflow.surrogate.network import build_network, simulate
 from bpsflow.surrogate.params import field_values, sample_columns
+from bpsflow.surrogate.run import ignored_targets, simulate_instances
 from bpsflow.surrogate.solar import double_glazing
 
 from conftest import ROOT, short_raw, write_config

@@ -263,8 +263,9 @@ def diagnosis_zone(config: Config, output: str | None = None, extension: str | N
     model = model if model is not None else model_objects(config.model)
     zones = model_zones(model)
     listed = ", ".join(zones) or "none"
+    per_extension = {str(k): v for k, v in settings.extension_zones.items()}
     configured = [(f"diagnosis.extension_zones.{extension}",
-                   settings.extension_zones.get(extension) if extension else None),
+                   per_extension.get(extension) if extension else None),
                   ("diagnosis.zone", settings.zone)]
     for key, name in configured:
         if name:
@@ -274,14 +275,14 @@ def diagnosis_zone(config: Config, output: str | None = None, extension: str | N
                                    f"{listed})", source=config.source)
             return found
     variable = config.outputs.get(output) if output else None
-    key = getattr(variable, "key", None)
-    found = zone_of_key(model, key)
-    if found is not None:
-        return found
+    output_key: str | None = getattr(variable, "key", None)     # None for a meter
+    referred = zone_of_key(model, output_key)
+    if referred is not None:
+        return referred
     if len(zones) == 1:
         return zones[0]
-    said = f"the output '{output}' (key '{key}') refers to none of them" if key else \
-        "no output names one"
+    said = (f"the output '{output}' (key '{output_key}') refers to none of them" if output_key
+            else "the diagnosed output names none of them")
     raise BpsflowError(f"diagnosis.zone: the model has {len(zones)} zones ({listed}) and {said}; "
                        f"set diagnosis.zone (or diagnosis.extension_zones) to the zone the "
                        f"candidate extensions are written for", source=config.source)
@@ -479,8 +480,8 @@ def _surface_fields(model: IdfModel) -> list[tuple[IdfObject, int]]:
     """Every surface of the model with the position of its zone field."""
     out = []
     for object_type, positions in {**_DETAILED, **_SIMPLE}.items():
-        out += [(o, positions[0]) for o in model.of_type(object_type)
-                if len(o.fields) > positions[0]]
+        zone_at = int(positions[0])
+        out += [(o, zone_at) for o in model.of_type(object_type) if len(o.fields) > zone_at]
     return out
 
 

@@ -204,8 +204,8 @@ def make_case(base_config: Path, directory: Path, effect: str | None, value: flo
     return HiddenCase(effect, value, out / "measured.csv", config_path, parameter_values)
 
 
-def null_measurements(measured: "np.ndarray", seeds: list[int], bound: float = 0.03,
-                      autocorrelation: float = 0.8) -> list["np.ndarray"]:
+def null_measurements(measured: np.ndarray, seeds: list[int], bound: float = 0.03,
+                      autocorrelation: float = 0.8) -> list[np.ndarray]:
     """Noisy copies of a noise-free truth series, one per seed (AR(1) relative noise)."""
     from bpsflow.synth import Noise, add_noise
 

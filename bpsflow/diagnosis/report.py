@@ -135,6 +135,7 @@ def write_figures(d: Diagnosis, figures: Path) -> dict[str, Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from bpsflow.diagnosis.structure import autocorrelation
 
     cal = d.calibration

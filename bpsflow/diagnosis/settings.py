@@ -34,6 +34,10 @@ from pydantic import BaseModel, ConfigDict, Field
 ExtensionName = Literal["infiltration_wind", "internal_gain_schedule", "solar_aperture",
                         "envelope_ua"]
 
+#: Every extension, in the order they are tried (the default of ``extensions``).
+ALL_EXTENSIONS: list[ExtensionName] = ["infiltration_wind", "internal_gain_schedule",
+                                       "solar_aperture", "envelope_ua"]
+
 
 class DiagnosisSettings(BaseModel):
     """Settings of ``bpsflow diagnose``.
@@ -83,9 +87,7 @@ class DiagnosisSettings(BaseModel):
     folds: int = Field(default=4, ge=2)
     plausible_change: float = Field(default=0.5, gt=0)
     gain_alpha: float = Field(default=0.05, gt=0, lt=1)
-    extensions: list[ExtensionName] = Field(
-        default_factory=lambda: ["infiltration_wind", "internal_gain_schedule",
-                                 "solar_aperture", "envelope_ua"])
+    extensions: list[ExtensionName] = Field(default_factory=lambda: list(ALL_EXTENSIONS))
     zone: str | None = Field(default=None, min_length=1)
     extension_zones: dict[ExtensionName, str] = Field(default_factory=dict)
     max_rounds: int = Field(default=3, ge=1)

@@ -12,7 +12,7 @@ Modules:
 - :mod:`~bpsflow.refine.report` — ``refined.yaml``, ``refine.json``, CSV, figures.
 """
 
-from bpsflow.refine.refinement import Refinement, RefinedParameter, refine
+from bpsflow.refine.refinement import RefinedParameter, Refinement, refine
 from bpsflow.refine.report import interval_table, write_refinement
 
 __all__ = ["Refinement", "RefinedParameter", "refine", "interval_table", "write_refinement"]

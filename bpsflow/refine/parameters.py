@@ -19,7 +19,7 @@ from pydantic import TypeAdapter
 from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Distribution, Empirical
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.idf import UNNAMED, IdfModel, inside_convection_curve, normalise
+from bpsflow.simulation.idf import UNNAMED, IdfModel
 from bpsflow.simulation.targets import select_objects, targets_field
 
 #: Central probability of the intervals reported before and after refinement.

@@ -63,11 +63,21 @@ from scipy import stats
 from bpsflow.config import Config, Parameter, period_dates
 from bpsflow.refine import estimators as est
 from bpsflow.refine import inputs as io
-from bpsflow.refine.parameters import (INTERVAL, bounded_normal, class_surfaces,
-                                       distribution_from, idf_nominal, idf_targets,
-                                       in_parameter_units, inside_convection_curve, interval,
-                                       parameter_nominal, parameters_targeting,
-                                       std_in_parameter_units, targets_field)
+from bpsflow.refine.parameters import (
+    INTERVAL,
+    bounded_normal,
+    class_surfaces,
+    distribution_from,
+    idf_nominal,
+    idf_targets,
+    in_parameter_units,
+    inside_convection_curve,
+    interval,
+    parameter_nominal,
+    parameters_targeting,
+    std_in_parameter_units,
+    targets_field,
+)
 from bpsflow.simulation.idf import model_objects
 
 #: Half-width of a central 90 % normal interval in standard errors.

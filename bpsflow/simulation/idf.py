@@ -241,18 +241,18 @@ _SCHEDULE_FILE = "SCHEDULE:FILE"
 _FILE_NAME = 2  # index of "File Name" among a Schedule:File's fields
 
 
-def model_files(model: "Model") -> list[Path]:
+def model_files(model: Model) -> list[Path]:
     """The files that make up the model: ``model.idf``, then ``model.idf_objects`` in order."""
     return [Path(model.idf), *[Path(p) for p in model.idf_objects]]
 
 
-def describe_model(model: "Model") -> str:
+def describe_model(model: Model) -> str:
     """The model's files for messages: ``base.idf`` or ``base.idf + a.idf + b.idf``."""
     files = model_files(model)
     return str(files[0]) + "".join(f" + {p.name}" for p in files[1:])
 
 
-def model_objects(model: "Model") -> IdfModel:
+def model_objects(model: Model) -> IdfModel:
     """Every object of the model: ``model.idf``'s, then each snippet's, in order.
 
     Each object knows the file that declares it (``IdfObject.source``); a
@@ -279,7 +279,7 @@ def model_objects(model: "Model") -> IdfModel:
     return _assemble(tuple(stamps))
 
 
-def model_text(model: "Model") -> str:
+def model_text(model: Model) -> str:
     """The whole model as IDF text (what the EnergyPlus instances are written from).
 
     The objects of :func:`model_objects`, one field per line; comments are

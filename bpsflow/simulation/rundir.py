@@ -191,7 +191,7 @@ class RunLock:
         self.path = Path(run_dir) / LOCK_FILE
         self.held = False
 
-    def __enter__(self) -> "RunLock":
+    def __enter__(self) -> RunLock:
         me = f"{socket.gethostname()} {os.getpid()} {time.strftime('%Y-%m-%dT%H:%M:%S')}"
         for _ in range(2):
             try:

@@ -39,8 +39,12 @@ import numpy as np
 
 from bpsflow.config import Config
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.idf import (IdfModel, IdfObject, centroid_height, polygon_area,
-                                   surface_user_curves)
+from bpsflow.simulation.idf import (
+    IdfObject,
+    centroid_height,
+    polygon_area,
+    surface_user_curves,
+)
 from bpsflow.surrogate.params import FieldValues
 from bpsflow.surrogate.schedules import Schedule, read_schedule
 from bpsflow.surrogate.solar import GlazingTables, double_glazing
@@ -473,7 +477,7 @@ def _air_exchanges(values: FieldValues, zone_name: str) -> tuple[np.ndarray, lis
             basis = "OUTDOOR"
             if object_type == "ZONEINFILTRATION:DESIGNFLOWRATE":
                 basis = _choice(obj, "Density Basis", "Outdoor", ("Outdoor", "Standard"))
-            get = lambda f, d: values.get(object_type, obj.name, f, d)  # noqa: E731
+            get = lambda f, d, kind=object_type, name=obj.name: values.get(kind, name, f, d)  # noqa: E731
             design = get("Design Flow Rate", None)
             a = get("Constant Term Coefficient", 1.0)
             b = get("Temperature Term Coefficient", 0.0)
@@ -497,7 +501,7 @@ def _internal_gains(values: FieldValues, zone_name: str) -> list[InternalGain]:
         _check_zone(obj, "Zone or ZoneList or Space or SpaceList Name", zone_name)
         _choice(obj, "Fuel Type", "None", ("None",))
         _choice(obj, "Design Level Calculation Method", "EquipmentLevel", ("EquipmentLevel",))
-        get = lambda f, d: values.get("OTHEREQUIPMENT", obj.name, f, d)  # noqa: E731
+        get = lambda f, d, name=obj.name: values.get("OTHEREQUIPMENT", name, f, d)  # noqa: E731
         latent, radiant, lost = (get("Fraction Latent", 0.0), get("Fraction Radiant", 0.0),
                                  get("Fraction Lost", 0.0))
         if np.any(latent + radiant + lost > 1.0 + 1e-9) or np.any(

@@ -19,11 +19,15 @@ import pandas as pd
 from bpsflow.boundary import SEQUENCES_FILE, read_boundary_file, read_sequences
 from bpsflow.config import BoundaryTarget, Config, Period, Test, WeatherTarget, period_dates
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.idf import model_objects
 from bpsflow.simulation.setpoints import day_setpoints
 from bpsflow.surrogate.cell import Cell
-from bpsflow.simulation.idf import model_objects
-from bpsflow.surrogate.solar import (SHADING_DAYS, beam_floor_fraction, facade_irradiance,
-                                     sun_positions)
+from bpsflow.surrogate.solar import (
+    SHADING_DAYS,
+    beam_floor_fraction,
+    facade_irradiance,
+    sun_positions,
+)
 from bpsflow.weather import perturb, read_epw
 from bpsflow.yearhours import day_rows
 
@@ -358,7 +362,7 @@ def solar_inputs(cell: Cell, forcing: PeriodForcing, steps: slice) -> dict[str, 
     walls = [i for i, s in enumerate(cell.opaque) if s.kind == "wall" and not s.outdoor]
     if not walls:
         on_floor = np.ones_like(on_floor)
-    for i, surface in enumerate(cell.opaque):
+    for i in range(len(cell.opaque)):
         out[f"in:{i}"] = np.zeros((n, len(zenith)))
     # Transmitted diffuse first falls on the surfaces the window sees (not its
     # own wall), in proportion to their area (approximate view factors).

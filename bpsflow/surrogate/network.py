@@ -238,7 +238,7 @@ class FaceProbe:
         if unknown:
             raise ValueError(f"unknown face terms {sorted(unknown)}; expected {FACE_TERMS}")
 
-    def record(self, stepper: "_Stepper", old: np.ndarray, new: np.ndarray,
+    def record(self, stepper: _Stepper, old: np.ndarray, new: np.ndarray,
                g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict, step: int,
                k: int) -> None:
         """Add one step's values (``step`` in the period, ``k`` in its day)."""
@@ -252,7 +252,7 @@ class FaceProbe:
                 total[:, hour] += weight * self._term(term, stepper, m, old, new, g_pairs,
                                                       capacity, inputs, k)
 
-    def _term(self, term: str, stepper: "_Stepper", m: int, old: np.ndarray, new: np.ndarray,
+    def _term(self, term: str, stepper: _Stepper, m: int, old: np.ndarray, new: np.ndarray,
               g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict, k: int) -> np.ndarray:
         """One quantity of face ``m`` at the end of a step, ``(n,)``."""
         net = stepper.net
@@ -277,7 +277,7 @@ class FaceProbe:
         return h if term == "convection_coefficient" else h * (t_adjacent - t_face)
 
     @staticmethod
-    def _conduction(stepper: "_Stepper", m: int, old: np.ndarray, new: np.ndarray,
+    def _conduction(stepper: _Stepper, m: int, old: np.ndarray, new: np.ndarray,
                     g_pairs: np.ndarray, capacity: np.ndarray, inputs: dict,
                     k: int) -> np.ndarray:
         """Heat (W) reaching inside face ``m`` from within its surface.

@@ -34,8 +34,12 @@ import numpy as np
 from bpsflow.config import Config
 from bpsflow.errors import BpsflowError
 from bpsflow.surrogate.cell import Cell
-from bpsflow.surrogate.forcing import (PeriodForcing, ground_reflected_irradiance, solar_inputs,
-                                       surface_irradiance)
+from bpsflow.surrogate.forcing import (
+    PeriodForcing,
+    ground_reflected_irradiance,
+    solar_inputs,
+    surface_irradiance,
+)
 from bpsflow.surrogate.network import FaceProbe, Simulation, reported_power
 
 Scope = Literal["zone", "ideal_loads", "inside_face", "opaque_inside_face", "outside_face",
@@ -269,9 +273,9 @@ def hourly_outputs(requests: list[Request], cell: Cell, forcing: PeriodForcing,
                 cell, forcing, steps)["transmitted"]), n, tph)
         elif scope == "outside_face":
             beam, sky, from_ground, _ = outside(face)
-            per_step = {"incident": lambda: beam + sky + from_ground, "beam": lambda: beam,
-                        "sky_diffuse": lambda: sky, "ground_diffuse": lambda: from_ground}
-            value = hour_means(per_step[quantity](), n, tph)
+            parts = {"incident": beam + sky + from_ground, "beam": beam, "sky_diffuse": sky,
+                     "ground_diffuse": from_ground}
+            value = hour_means(parts[quantity], n, tph)
         else:
             per_step = {"direct": lambda: forcing.dni, "diffuse": lambda: forcing.dhi,
                         "ground_reflected": ground,

@@ -17,8 +17,8 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, WeatherTarget
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.targets import apply_mode, select_objects
 from bpsflow.simulation.idf import FIELDS, UNNAMED, IdfModel, describe_model, normalise
+from bpsflow.simulation.targets import apply_mode, select_objects
 
 Key = tuple[str, str, str]  # (TYPE, NAME upper, normalised field)
 

@@ -8,13 +8,18 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.config import Config, WeatherTarget, test_dates
-from bpsflow.errors import BpsflowError
+from bpsflow.simulation.idf import model_objects
 from bpsflow.surrogate.cell import build_cell
 from bpsflow.surrogate.forcing import period_forcing
-from bpsflow.simulation.idf import model_objects
 from bpsflow.surrogate.network import build_network, simulate
-from bpsflow.surrogate.outputs import (SUPPORTED_OUTPUTS, check_variables, face_probe,
-                                       hourly_outputs, resolve_outputs, used_outputs)
+from bpsflow.surrogate.outputs import (
+    SUPPORTED_OUTPUTS,
+    check_variables,
+    face_probe,
+    hourly_outputs,
+    resolve_outputs,
+    used_outputs,
+)
 from bpsflow.surrogate.params import field_values, sample_columns
 
 #: Weather quantities the surrogate has no physics for.

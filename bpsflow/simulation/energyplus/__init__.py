@@ -18,8 +18,13 @@ import pandas as pd
 from bpsflow.config import test_dates
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.backend import Batch, CheckReport
-from bpsflow.simulation.energyplus.engine import (FREQUENCIES, find_energyplus, idd_path,
-                                                  read_outputs, run_energyplus)
+from bpsflow.simulation.energyplus.engine import (
+    FREQUENCIES,
+    find_energyplus,
+    idd_path,
+    read_outputs,
+    run_energyplus,
+)
 from bpsflow.simulation.energyplus.instances import check_model, write_instance
 from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, RESULT_COLUMNS, InstanceRecord, instance_dir
 

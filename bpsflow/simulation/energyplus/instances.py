@@ -16,18 +16,28 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from datetime import date, timedelta
 from functools import lru_cache
 from pathlib import Path
 
-
 from bpsflow.boundary import SEQUENCES_FILE, period_hours, read_sequences, write_boundary_file
-from bpsflow.config import (BoundaryTarget, Config, IdfTarget, Model, Parameter, Period,
-                            WeatherTarget, period_dates)
+from bpsflow.config import (
+    BoundaryTarget,
+    Config,
+    IdfTarget,
+    Model,
+    Parameter,
+    Period,
+    WeatherTarget,
+    period_dates,
+)
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import describe_model, model_objects, model_text
-from bpsflow.simulation.setpoints import (ThermostatPlan, control_objects_text,
-                                          setpoint_schedules, thermostat_plan)
+from bpsflow.simulation.setpoints import (
+    ThermostatPlan,
+    control_objects_text,
+    setpoint_schedules,
+    thermostat_plan,
+)
 from bpsflow.simulation.targets import apply_mode, select_objects
 from bpsflow.weather import perturb, read_epw, write_epw
 
