@@ -107,7 +107,7 @@ def _run_chunk(backend: Backend, config: Config, chunk: pd.DataFrame, run_dir: P
 def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
                  jobs: int | None = None, retry_failed: bool = False, keep_inputs: bool = False,
                  show_progress: bool = True, executor: Executor | None = None,
-                 label: str | None = None) -> RunSummary:
+                 label: str | None = None, announce: bool = True) -> RunSummary:
     """Run every unfinished instance of ``samples`` in ``config.run_dir``.
 
     Parameters
@@ -125,6 +125,10 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
         Keep each instance's input files (EnergyPlus: IDF, EPW, CSV).
     executor : Executor, optional
         Where tasks run (default: :class:`~bpsflow.simulation.executor.LocalExecutor`).
+    label : str, optional
+        The progress bar's label (default: the backend's name).
+    announce : bool
+        Print a line saying how many instances run (off for a command's inner batches).
 
     Returns
     -------
@@ -149,7 +153,7 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
                 records[i] = InstanceRecord(instance=i, status="ok", seconds=0.0,
                                             backend=backend.name)
         chunks = _chunks(todo, backend, executor.jobs)
-        if todo:
+        if todo and announce:
             console.print(f"running {len(todo)} instance(s) on {backend.name} with "
                           f"{min(executor.jobs, len(chunks))} job(s); {len(finished)} finished "
                           f"before, {len(failed_before - set(todo))} failed before (not retried)")
@@ -238,7 +242,7 @@ def simulate_samples(config: Config, samples: pd.DataFrame, workdir: Path, backe
     if config.model.boundary is not None and workdir.resolve() != sequences_dir.resolve():
         shutil.copy2(sequences_dir / SEQUENCES_FILE, workdir / SEQUENCES_FILE)
     summary = run_ensemble(run_config(config, workdir), samples, backend, jobs=jobs,
-                           show_progress=show_progress)
+                           show_progress=show_progress, announce=show_progress)
     if summary.failed:
         raise BpsflowError(f"{summary.failed} of {summary.total} {what} failed in {workdir}: "
                            f"{summary.first_error}")
