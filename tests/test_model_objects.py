@@ -8,7 +8,6 @@ diagnose``, and AR(1) sensor noise for synthetic measurements.
 
 from __future__ import annotations
 
-import shutil
 from datetime import date, timedelta
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import pytest
 import yaml
 
 from bpsflow.config import load_config
+from bpsflow.diagnosis.extensions import fill_template
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import model_objects, model_text, parse_idf_text
 from bpsflow.surrogate.cell import build_cell, wind_factor, zone_centroid_height
@@ -62,9 +62,28 @@ def no_samplers(raw: dict) -> dict:
     return raw
 
 
-def copy_snippet(name: str, folder: Path) -> Path:
+#: The names the tests give each extension template's objects on the test cell.
+SNIPPET_NAMES = {
+    "infiltration_wind.idf": {"object": "DiagnosisWindInfiltration",
+                              "schedule": "DiagnosisWindAlwaysOn", "file": ""},
+    "envelope_ua.idf": {"object": "DiagnosisExtraConductance",
+                        "schedule": "DiagnosisConductanceAlwaysOn", "file": ""},
+    "internal_gain_schedule.idf": {"object": "DiagnosisScheduledGain",
+                                   "schedule": "DiagnosisGainProfile",
+                                   "file": "internal_gain_profile.csv"},
+    "solar_aperture.idf": {"object": "DiagnosisSolarAperture",
+                           "schedule": "DiagnosisFacadeIrradiance",
+                           "file": "facade_irradiance.csv"},
+}
+
+
+def copy_snippet(name: str, folder: Path, zone: str = "Cell") -> Path:
+    """An extension template rendered for ``zone`` of the test cell, written to ``folder``."""
     folder.mkdir(parents=True, exist_ok=True)
-    return Path(shutil.copyfile(EXTENSIONS / name, folder / name))
+    text = fill_template((EXTENSIONS / name).read_text(), {"zone": zone, **SNIPPET_NAMES[name]})
+    path = folder / name
+    path.write_text(text)
+    return path
 
 
 def write_profile(path: Path, values: np.ndarray) -> Path:
