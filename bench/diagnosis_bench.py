@@ -32,11 +32,12 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from benchlib import record, scratch  # noqa: E402
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.diagnosis.hidden import EXPECTED, MEASURE, make_case, null_measurements  # noqa: E402
 from bpsflow.diagnosis.workflow import diagnose, diagnose_many  # noqa: E402
 from bpsflow.synth import read_measured  # noqa: E402
+
+from benchlib import record, scratch  # noqa: E402
 
 CONFIG = ROOT / "configs" / "diagnosis.yaml"
 COMMAND = "python bench/diagnosis_bench.py"

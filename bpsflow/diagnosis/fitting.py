@@ -23,9 +23,9 @@ calibration hours and ``ε ~ N(0, s²)``, so it costs no extra simulation.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -141,7 +141,7 @@ def fit_many(simulate: Simulator, problems: list[Problem], *, max_iterations: in
     states = [_State(p) for p in problems]
     count = 0
 
-    def evaluate(requests: list[tuple["_State", np.ndarray]]) -> list[list[np.ndarray]]:
+    def evaluate(requests: list[tuple[_State, np.ndarray]]) -> list[list[np.ndarray]]:
         nonlocal count
         rows, spans = [], []
         for state, x in requests:

@@ -29,9 +29,9 @@ Four steps (DESIGN.md §8; seed §1.1.1.1, §2.1, §4.3.1):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -39,11 +39,26 @@ import pandas as pd
 from bpsflow.config import Config, Parameter
 from bpsflow.diagnosis import comparison, structure
 from bpsflow.diagnosis.drivers import derive_drivers
-from bpsflow.diagnosis.extensions import (EXTENSIONS, block_profile, candidates_for,
-                                          diagnosis_zone, extend_config, facade_irradiance,
-                                          facade_of, gain_blocks, profile_schedule)
-from bpsflow.diagnosis.fitting import (Fit, Problem, fit_many, output_simulator, parameter_range,
-                                       predictive_ensemble, scores)
+from bpsflow.diagnosis.extensions import (
+    EXTENSIONS,
+    block_profile,
+    candidates_for,
+    diagnosis_zone,
+    extend_config,
+    facade_irradiance,
+    facade_of,
+    gain_blocks,
+    profile_schedule,
+)
+from bpsflow.diagnosis.fitting import (
+    Fit,
+    Problem,
+    fit_many,
+    output_simulator,
+    parameter_range,
+    predictive_ensemble,
+    scores,
+)
 from bpsflow.diagnosis.settings import DiagnosisSettings
 from bpsflow.diagnosis.signatures import candidate_parameters, explain, signatures
 from bpsflow.errors import BpsflowError
