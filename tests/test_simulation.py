@@ -294,3 +294,42 @@ def test_no_code_path_or_package_data_names_a_shipped_models_objects():
     offenders += [f"{p.relative_to(ROOT)}: {m.group(0)}" for p in PACKAGE.rglob("*.idf")
                   for m in [SHIPPED_NAMES.search(p.read_text())] if m]
     assert offenders == []
+
+
+# The test seam: a workflow above the layer on the toy backend ---------------
+
+
+def test_morris_on_the_toy_backend_recovers_the_closed_form_effects(tmp_path):
+    """The toy output is ``a + 2 b + sin(hour)``: each elementary effect is its weight times
+    the value step per unit step of the design, the same in every trajectory (sigma 0)."""
+    from bpsflow import sensitivity as morris
+
+    config = toy_config(tmp_path)
+    config.parameters[0].distribution = config.parameters[0].distribution.model_copy(
+        update={"lower": 0.0, "upper": 2.0})
+    config.parameters[1].distribution = config.parameters[1].distribution.model_copy(
+        update={"upper": 3.0})
+    toy = ToyBackend("toy-morris")
+    register_backend(toy)
+    mcfg = morris.morris_config(config, trajectories=4, levels=4)
+    samples = morris.prepare_morris(mcfg, toy.name, announce=lambda _: None)
+    summary = run_ensemble(mcfg, samples, get_backend(toy.name), jobs=1, show_progress=False)
+    assert summary.ok == len(samples) == 4 * 3
+    results = rundir.read_results(mcfg.run_dir)
+    responses = morris.window_responses(mcfg, results, None, "raw")
+    unit = morris.read_unit_design(mcfg.run_dir)
+    varied = morris.varied_parameters(mcfg)
+    indices = morris.morris_indices(varied, unit[[p.name for p in varied]].to_numpy(),
+                                    responses.reindex(unit.index), mcfg.design.levels)
+    mu_star = indices.set_index(["response", "parameter"])["mu_star"]
+    delta = mcfg.design.levels / (2 * (mcfg.design.levels - 1))      # SALib's unit step
+    for weight, name in ((1.0, "a"), (2.0, "b")):
+        # one Morris step moves a uniform input by the same amount everywhere
+        trajectories = samples[name].to_numpy().reshape(mcfg.design.trajectories, -1)
+        steps = np.abs(np.diff(trajectories, axis=1)).ravel()
+        value_step = steps[steps > 0]
+        assert np.ptp(value_step) < 1e-12
+        for response in responses.columns:
+            assert mu_star[(response, name)] == pytest.approx(
+                weight * value_step[0] / delta, rel=1e-9)
+    np.testing.assert_allclose(indices["sigma"].to_numpy(), 0.0, atol=1e-9)
