@@ -333,3 +333,13 @@ def test_morris_on_the_toy_backend_recovers_the_closed_form_effects(tmp_path):
             assert mu_star[(response, name)] == pytest.approx(
                 weight * value_step[0] / delta, rel=1e-9)
     np.testing.assert_allclose(indices["sigma"].to_numpy(), 0.0, atol=1e-9)
+
+
+def test_every_module_imports():
+    import importlib
+    import pkgutil
+
+    import bpsflow
+
+    for module in pkgutil.walk_packages(bpsflow.__path__, "bpsflow."):
+        importlib.import_module(module.name)

@@ -71,14 +71,13 @@ from bpsflow.refine.parameters import (
     idf_nominal,
     idf_targets,
     in_parameter_units,
-    inside_convection_curve,
     interval,
     parameter_nominal,
     parameters_targeting,
     std_in_parameter_units,
-    targets_field,
 )
-from bpsflow.simulation.idf import model_objects
+from bpsflow.simulation.idf import inside_convection_curve, model_objects
+from bpsflow.simulation.targets import targets_field
 
 #: Half-width of a central 90 % normal interval in standard errors.
 _Z90 = float(stats.norm.ppf(0.5 + INTERVAL / 2))
