@@ -265,15 +265,17 @@ def validate(config: Path = ConfigArg,
     plot_bands(cfg, results, rd / "figures", observed)
     table = Table(title=f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "
                         f"{1 - cfg.validation.q:.0%}, CRPS {cfg.validation.estimator})")
-    columns = ["test", "metric", "threshold"] + (
+    columns = ["test", "output", "metric", "threshold"] + (
         ["invalid_quantile", "type_ii_risk", "reduced_risk"] if invalid else []) + \
         ["nMCRPS / MCRPS", "CV(RMSE)", "NMBE", "G14"]
     for column in columns:
-        table.add_column(column, justify="left" if column in ("test", "metric") else "right")
+        table.add_column(column, justify="left" if column in ("test", "output", "metric")
+                         else "right", overflow="fold")
     for v in validations:
         row = v.row
         temperature = row["metric"] == "MAE"
-        cells = [row["test"], f"{row['metric']} [{row['metric_unit']}]", f"{row['threshold']:.4g}"]
+        cells = [row["test"], f"{row['output']} ({cfg.outputs[row['output']].label})",
+                 f"{row['metric']} [{row['metric_unit']}]", f"{row['threshold']:.4g}"]
         if invalid:
             cells += [f"{row['invalid_quantile']:.4g}", f"{row['type_ii_risk']:.1%}",
                       f"{row['reduced_risk']:.1%}"]
