@@ -150,6 +150,7 @@ def test_posterior_concentrates_on_theta_and_discrepancy_recovers_the_bias():
     assert bayes.assess(posterior, {"z": ["theta"]}, settings).per_quantity["theta"]["rhat"] < 1.02
 
 
+@pytest.mark.slow
 def test_credible_intervals_cover_at_their_nominal_rate():
     """Truths drawn from the model itself: 90 % and 50 % intervals cover ~90 % and ~50 %."""
     x, unit, emulator = toy_emulator(k=2, runs=40, rows=8, seed=2)
@@ -217,6 +218,7 @@ def test_diagnostics_known_answers():
     assert bayes.ess_bulk(sticky) < 100
 
 
+@pytest.mark.slow
 def test_unmixed_chains_are_reported_as_not_converged():
     x, unit, emulator = toy_emulator(k=1, runs=30, rows=8)
     observed = toy_simulator(x, np.array([[0.4]]))[:, 0]
@@ -265,6 +267,7 @@ def _short_calibration_config(tmp_path, scenarios: bool = False) -> tuple:
     return config, tmp_path / "run" / "truth" / "measured.csv", tmp_path / "run" / "truth" / "truth.json"
 
 
+@pytest.mark.slow
 def test_cli_calibrate_writes_the_documented_files(tmp_path):
     config, measured, truth = _short_calibration_config(tmp_path)
     result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
@@ -293,6 +296,7 @@ def test_cli_calibrate_writes_the_documented_files(tmp_path):
     assert {"chain", "draw", "glazing_dirt_correction", "noise_std"} <= set(posterior.columns)
 
 
+@pytest.mark.slow
 def test_cli_exits_non_zero_when_not_converged(tmp_path):
     config, measured, _ = _short_calibration_config(tmp_path)
     args = ["calibrate", str(config), "--measured", str(measured), "--no-progress",
@@ -304,6 +308,7 @@ def test_cli_exits_non_zero_when_not_converged(tmp_path):
     assert record["diagnostics"]["converged"] is False and record["diagnostics"]["reasons"]
 
 
+@pytest.mark.slow
 def test_cli_scenarios_and_deterministic(tmp_path):
     config, measured, _ = _short_calibration_config(tmp_path, scenarios=True)
     # Convergence of these 150-draw chains depends on the NumPyro/JAX release (tail ESS 43
@@ -326,6 +331,7 @@ def test_cli_scenarios_and_deterministic(tmp_path):
     assert {row["model"] for row in record["heldout"]} == {"prior", "deterministic_physical"}
 
 
+@pytest.mark.slow
 def test_deterministic_on_the_simulator_agrees_with_the_emulator(tmp_path):
     import yaml
 

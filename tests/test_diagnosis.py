@@ -69,6 +69,7 @@ CASES = {"wind_infiltration": 0.004, "office_gain": 150.0, "east_aperture": 1.0,
 
 
 @pytest.mark.parametrize("effect", sorted(CASES))
+@pytest.mark.slow
 def test_hidden_model_form_effect_is_found_and_fixed(effect, surrogate_base, tmp_path):
     value = CASES[effect]
     case = make_case(surrogate_base, tmp_path / "truth", effect, value, FITTED_TRUTH, seed=3)
@@ -87,6 +88,7 @@ def test_hidden_model_form_effect_is_found_and_fixed(effect, surrogate_base, tmp
     assert result.rounds[-1]["significant"] == []
 
 
+@pytest.mark.slow
 def test_pure_parameter_error_names_the_parameter(surrogate_base, tmp_path):
     """All solar gains 30 % higher than the model's fixed irradiance gain says."""
     truth = {**FITTED_TRUTH, "global_irradiance_gain": 1.3}
@@ -102,6 +104,7 @@ def test_pure_parameter_error_names_the_parameter(surrogate_base, tmp_path):
     assert not [e for e in result.extensions if e["accepted"]]
 
 
+@pytest.mark.slow
 def test_cli_null_case_writes_the_contract_and_invents_no_cause(surrogate_base, tmp_path):
     """Autocorrelated sensor noise only: verdict none, diagnosis.json in the DESIGN §8 shape."""
     case = make_case(surrogate_base, tmp_path / "truth", None, 0.0, FITTED_TRUTH, seed=11)
@@ -129,6 +132,7 @@ def test_cli_null_case_writes_the_contract_and_invents_no_cause(surrogate_base, 
     assert len(table) == record["hours"]["calibration"] + record["hours"]["heldout"]
 
 
+@pytest.mark.slow
 def test_false_model_form_verdicts_stay_rare_over_null_datasets(surrogate_base, tmp_path):
     """20 null datasets (different noise seeds, AR(1) noise): ≤ 10 % false model_form."""
     case = make_case(surrogate_base, tmp_path / "truth", None, 0.0, FITTED_TRUTH, seed=0,
@@ -202,6 +206,7 @@ def test_fit_many_finds_known_least_squares_optima(surrogate_base):
         assert fit.jacobian[:, 0] == pytest.approx(basis[:, 0], rel=1e-6)
 
 
+@pytest.mark.slow
 def test_extension_variants_coexist_and_are_nested_at_zero(surrogate_base, tmp_path):
     """Two variants of one extension in one model; at zero the model is the original."""
     from bpsflow.diagnosis.fitting import output_simulator
@@ -407,6 +412,7 @@ def test_test_cell_rendering_matches_the_previous_snippets_apart_from_names():
             assert constant == []
 
 
+@pytest.mark.slow
 def test_test_cell_extensions_simulate_as_the_previous_snippets(surrogate_base, tmp_path):
     """The rendered infiltration snippets give the previous snippets' predictions, not just text."""
     from bpsflow.config import IdfTarget
@@ -548,6 +554,7 @@ def test_report_says_no_extension_was_tried_when_they_are_switched_off(tmp_path)
 
 
 @pytest.mark.energyplus
+@pytest.mark.slow
 @pytest.mark.parametrize("effect,value", [("wind_infiltration", 0.004),
                                           ("office_gain", 150.0)])
 def test_hidden_effect_on_energyplus(effect, value, tmp_path):

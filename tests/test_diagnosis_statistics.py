@@ -281,6 +281,7 @@ def test_detects_wind_driven_infiltration():
         assert found and found[0] == "wind_speed", (seed, found)
 
 
+@pytest.mark.slow
 def test_false_alarm_rate_on_autocorrelated_noise():
     drivers = window_drivers()
     alarms, p_values = [], []

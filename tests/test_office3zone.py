@@ -59,6 +59,7 @@ def nominal_frame(config) -> pd.DataFrame:
                         index=pd.Index([0], name="instance"))
 
 
+@pytest.mark.slow
 def test_two_setpoints_give_different_results_and_the_zones_follow_them(tmp_path):
     """The tests' setpoints reach the model's own thermostats (no silent no-op)."""
     means = {}

@@ -484,6 +484,7 @@ def test_refine_without_surface_classes_takes_them_from_the_model(tmp_path):
         assert before.fit.alpha == after.fit.alpha and before.fit.exponent == after.fit.exponent
 
 
+@pytest.mark.slow
 def test_refine_recovers_the_truth_behind_bpsflow_synth_detailed(tmp_path):
     """End to end on the surrogate: synth --detailed, then refine; every refined input
     holds the truth instance's value in its 90 % interval and is narrower than the baseline."""

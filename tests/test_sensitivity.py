@@ -219,6 +219,7 @@ def test_morris_design_is_redrawn_when_its_settings_change(case):
         morris_config(case, 2, 5)
 
 
+@pytest.mark.slow
 def test_sensitivity_cli_on_the_surrogate(tmp_path):
     config = write_config(tmp_path, short_raw())
     run_dir = tmp_path / "run"
