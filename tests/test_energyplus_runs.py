@@ -151,7 +151,9 @@ def test_synth_writes_noisy_measurements_of_the_truth(tmp_path):
     assert list(measured.columns) == ["timestamp", "cooling_power_w", "heating_power_w",
                                       "zone_air_temperature_c"]
     assert len(measured) == 96
-    clean = pd.read_parquet(tmp_path / "run" / "truth" / "instances" / "truth" / "outputs.parquet")
+    # the truth instance runs in the truth folder's own simulation directory
+    clean = pd.read_parquet(tmp_path / "run" / "truth" / "simulation" / "instances" / "000000"
+                            / "outputs.parquet")
     heat = clean[clean["output"] == "heating_power_w"].set_index("timestamp")["value"]
     joined = measured.set_index("timestamp")["heating_power_w"].loc[heat.index]
     on = heat > 50

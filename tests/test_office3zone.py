@@ -119,11 +119,14 @@ def test_the_surrogate_names_what_it_lacks_and_auto_says_energyplus_is_needed(tm
 @pytest.mark.slow
 def test_every_command_runs_on_the_foreign_building(tmp_path):
     """check → sample → run → synth → validate → sensitivity → calibrate → diagnose."""
-    raw = office_raw(tmp_path)
+    raw = office_raw(tmp_path, days=10)
     raw["calibration"] = {"outputs": ["space4_heating_w"], "resolution": "daily",
                           "holdout_days": 3, "design": {"runs": 12, "seed": 3},
                           "bayes": {"chains": 2, "warmup": 100, "samples": 100},
                           "posterior_runs": 2}
+    # a smoke test of the command: one round, no signature runs of fixed inputs
+    raw["diagnosis"] = {"output": "space4_heating_w", "holdout_days": 3, "suspects": [],
+                        "max_rounds": 1}
     path = write(tmp_path, raw, "office.yaml")
     truth = write(tmp_path, {"seed": 5, "values": {"infiltration_flow": 1.4}}, "truth.yaml")
     measured = tmp_path / "run" / "truth" / "measured.csv"

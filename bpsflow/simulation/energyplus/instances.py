@@ -295,11 +295,36 @@ def build_template(config: Config, period: Period, idd: Path) -> Template:
             filled.add(spec.schedule.upper())
             schedule_slots += 1
     _check_schedule_files(config, filled)
-    text = idf.idfstr() + "\n" + _period_text(config, period, plan)
+    text = idf_text(idf) + "\n" + _period_text(config, period, plan)
     pieces = _SLOT_PATTERN.split(text)
     return Template(pieces=pieces[0::2], order=[int(n) for n in pieces[1::2]],
                     slots=[slot for _, slot in ordered], schedule_slots=schedule_slots,
                     targets=targets, thermostats=plan)
+
+
+def idf_text(idf) -> str:
+    """The IDF text of an eppy model: its values as eppy writes them, without comments.
+
+    eppy's own ``idfstr`` looks up every field's units to write them in a
+    comment, which costs seconds on a multi-zone model (quadratic in the
+    fields of long objects); the values, and so the simulation, are the same.
+    """
+    from eppy.bunchhelpers import scientificnotation
+
+    objects = []
+    for object_type in idf.model.dtls:
+        for obj in idf.idfobjects[object_type]:
+            values = []
+            for value in obj.obj:
+                try:
+                    number = int(value)
+                    value = number if number == value else value
+                except (TypeError, ValueError):
+                    pass
+                values.append(value)
+            fields = [str(scientificnotation(v, width=18)) for v in values[1:]]
+            objects.append(f"{values[0]},\n    " + ",\n    ".join(fields) + ";\n")
+    return "\n".join(objects)
 
 
 def _rewire_thermostats(idf, plan: ThermostatPlan) -> None:
