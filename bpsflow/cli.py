@@ -7,6 +7,7 @@ paragraph naming the file and key, and exit with status 2; no traceback.
 from __future__ import annotations
 
 import functools
+import os
 import sys
 from pathlib import Path
 
@@ -31,6 +32,8 @@ def _friendly(func):
     def wrapper(*args, **kwargs):
         try:
             return func(*args, **kwargs)
+        except (typer.Exit, typer.Abort, typer.BadParameter):
+            raise
         except BpsflowError as exc:
             err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False, soft_wrap=True)
             raise typer.Exit(code=2) from None
@@ -38,6 +41,22 @@ def _friendly(func):
             err_console.print("[yellow]interrupted: finished instances are kept; run the same "
                               "command again to resume[/yellow]")
             raise typer.Exit(code=130) from None
+        except OSError as exc:
+            # A file the user named (or the run directory) cannot be read or written:
+            # say which and why, as for any other bad input.
+            where = exc.filename if exc.filename is not None else "a file"
+            err_console.print(f"[bold red]error:[/bold red] {where}: {exc.strerror or exc}",
+                              highlight=False, soft_wrap=True)
+            raise typer.Exit(code=2) from None
+        except Exception as exc:
+            if os.environ.get("BPSFLOW_DEBUG"):
+                raise
+            # A defect of bpsflow, not of the input: no traceback on the user's screen,
+            # but enough to report it, and the way to see the traceback.
+            err_console.print(f"[bold red]internal error:[/bold red] {type(exc).__name__}: {exc} "
+                              f"(a bpsflow defect; set BPSFLOW_DEBUG=1 for the traceback and "
+                              f"please report it)", highlight=False, soft_wrap=True)
+            raise typer.Exit(code=1) from None
     return wrapper
 
 
