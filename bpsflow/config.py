@@ -44,6 +44,7 @@ from bpsflow.calibration.settings import CalibrationSettings
 from bpsflow.diagnosis.settings import DiagnosisSettings
 from bpsflow.distributions import Constant, Distribution, Empirical, Sampler
 from bpsflow.errors import BpsflowError
+from bpsflow.files import read_user_text
 
 _NAME = r"^[A-Za-z_][A-Za-z0-9_.\-]*$"
 _MONTH_DAY = re.compile(r"^(\d{2})-(\d{2})$")
@@ -61,7 +62,8 @@ WEATHER_FIELDS = (
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # NaN and infinity are never a meaningful config value; refusing them here names the key.
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class IdfTarget(_Strict):
@@ -156,8 +158,9 @@ class Test(_Strict):
     days: int = Field(default=6, ge=1)
     warmup_days: int = Field(default=3, ge=0)
     mode: Literal["heating", "cooling", "free_floating"]
-    setpoint_c: float | None = None
-    setback_c: float | None = None
+    # A thermostat setpoint outside [-50, 100] °C is a unit or typing mistake.
+    setpoint_c: float | None = Field(default=None, ge=-50.0, le=100.0)
+    setback_c: float | None = Field(default=None, ge=-50.0, le=100.0)
     setback_start_hour: int = Field(default=18, ge=0, le=24)
     setback_end_hour: int = Field(default=8, ge=0, le=24)
     outputs: list[str] = Field(min_length=1)
@@ -467,7 +470,7 @@ def _read_yaml(path: Path) -> dict:
     if not path.is_file():
         raise BpsflowError(f"config file not found: {path}")
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.safe_load(read_user_text(path, "a YAML config"))
     except yaml.YAMLError as exc:
         raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
     if not isinstance(raw, dict):

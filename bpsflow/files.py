@@ -1,4 +1,5 @@
-"""Writing result files: JSON with one set of conversions, and atomic writes.
+"""Reading the user's text files, and writing result files: JSON with one set of
+conversions, and atomic writes.
 
 Every file bpsflow writes for a user or for a later command goes through
 here, so that
@@ -30,7 +31,41 @@ from typing import IO, Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["jsonable", "write_csv", "write_json", "write_parquet", "write_text_atomic"]
+__all__ = ["jsonable", "read_user_text", "write_csv", "write_json", "write_parquet",
+           "write_text_atomic"]
+
+
+def read_user_text(path: str | os.PathLike, what: str) -> str:
+    """The text of a file the user named, or a :class:`BpsflowError` that says what is wrong.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    what : str
+        What the file should be, for the message (e.g. ``"a YAML config"``).
+
+    Raises
+    ------
+    BpsflowError
+        When the file is missing, is a folder, cannot be read, or is not UTF-8
+        text (a binary or mis-encoded file); its content is never echoed.
+    """
+    from bpsflow.errors import BpsflowError
+
+    path = Path(path)
+    if not path.exists():
+        raise BpsflowError(f"file not found; expected {what}", source=path)
+    if not path.is_file():
+        raise BpsflowError(f"is not a file; expected {what}", source=path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise BpsflowError(f"not a UTF-8 text file (byte {exc.start} cannot be decoded); "
+                           f"expected {what}", source=path) from None
+    except OSError as exc:
+        raise BpsflowError(f"cannot be read ({exc.strerror}); expected {what}",
+                           source=path) from None
 
 
 def jsonable(value: Any) -> Any:

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from bpsflow.config import Config, _format_location
 from bpsflow.errors import BpsflowError
-from bpsflow.files import write_json
+from bpsflow.files import read_user_text, write_json
 
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
@@ -42,14 +42,14 @@ class Noise(BaseModel):
     at every gap in the hourly timestamps (between test windows).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["absolute", "relative"]
     bound: float = Field(ge=0)
     autocorrelation: float = Field(default=0.0, ge=0.0, lt=1.0)
 
 
 class Truth(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     values: dict[str, float] = Field(default_factory=dict)
     noise: dict[str, Noise] = Field(default_factory=dict)
     seed: int = 0
@@ -68,7 +68,7 @@ def load_truth(path: Path, config: Config) -> Truth:
     if not path.is_file():
         raise BpsflowError(f"truth file not found: {path}")
     try:
-        raw = yaml.safe_load(path.read_text()) or {}
+        raw = yaml.safe_load(read_user_text(path, "a YAML truth file")) or {}
         truth = Truth.model_validate(raw)
     except yaml.YAMLError as exc:
         raise BpsflowError(f"not valid YAML: {exc}", source=path) from None

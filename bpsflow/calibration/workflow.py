@@ -33,6 +33,7 @@ from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effec
 from bpsflow.calibration.settings import CalibrationSettings, Scenario
 from bpsflow.config import Config, Parameter
 from bpsflow.errors import BpsflowError
+from bpsflow.files import read_user_text
 
 console = Console(stderr=True)
 
@@ -356,8 +357,8 @@ def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
     if not path.is_file():
         raise BpsflowError(f"truth file not found: {path}")
     try:
-        raw = json.loads(path.read_text()) if path.suffix == ".json" else \
-            yaml.safe_load(path.read_text())
+        text = read_user_text(path, "a truth file (JSON or YAML)")
+        raw = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (ValueError, yaml.YAMLError) as exc:
         raise BpsflowError(f"cannot read the truth file: {exc}", source=path) from None
     values = raw.get("values") if isinstance(raw, dict) else None

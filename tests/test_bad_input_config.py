@@ -1,0 +1,55 @@
+"""Bad-input battery: the config and the truth file (one case per class, through the CLI)."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import yaml
+from battery import assert_clean_error, invoke
+
+from conftest import short_raw, write_config
+
+
+def _surrogate_raw() -> dict:
+    raw = short_raw()
+    raw["model"]["backend"] = "surrogate"
+    return raw
+
+
+def test_a_binary_config_is_refused_without_echoing_it(tmp_path):
+    path = tmp_path / "binary.yaml"
+    path.write_bytes(b"\x85\xff" + os.urandom(200))
+    text = assert_clean_error(invoke("check", path), str(path), "not a UTF-8 text file")
+    assert "\ufffd" not in text
+
+
+def test_a_folder_given_as_config_is_named(tmp_path):
+    assert_clean_error(invoke("check", tmp_path), str(tmp_path), "config file not found")
+
+
+@pytest.mark.parametrize("key, value", [("mean", float("nan")), ("std", float("inf"))])
+def test_non_finite_distribution_values_name_the_key(tmp_path, key, value):
+    raw = _surrogate_raw()
+    raw["parameters"][0]["distribution"][key] = value
+    name = raw["parameters"][0]["name"]
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       f"parameters[0] ({name}).distribution", "finite number")
+
+
+@pytest.mark.parametrize("value", [1e6, -273.0])
+def test_an_implausible_setpoint_names_the_test(tmp_path, value):
+    raw = _surrogate_raw()
+    raw["model"]["tests"][0]["setpoint_c"] = value
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       "model.tests[0] (H-ST).setpoint_c")
+
+
+def test_a_non_finite_truth_value_names_the_key(tmp_path):
+    config = write_config(tmp_path, _surrogate_raw())
+    truth = tmp_path / "truth.yaml"
+    name = _surrogate_raw()["parameters"][0]["name"]
+    truth.write_text(yaml.safe_dump({"values": {name: float("nan")}}))
+    assert_clean_error(invoke("synth", config, "--truth", truth), str(truth), f"values.{name}",
+                       "finite number")
+    assert not (tmp_path / "run" / "truth").exists()
