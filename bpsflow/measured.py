@@ -112,7 +112,7 @@ class MeasuredData:
         What the user must know (aggregation, conversion, rows left out),
         each naming the file; the commands print them.
     aggregation : dict
-        Column -> how it was aggregated (``"15-min mean to hourly"``), for
+        Column -> how it was aggregated (``"15-min data averaged to hourly"``), for
         the columns that were.
     """
 
@@ -124,11 +124,11 @@ class MeasuredData:
     def note_for(self, column: str) -> str:
         """The aggregation applied to ``column`` as a short note ("" if none)."""
         rule = self.aggregation.get(column)
-        return f"measured {rule}" if rule else ""
+        return f"measured: {rule}" if rule else ""
 
     def record(self) -> dict:
         """What ``validation.json`` records about the measured file."""
-        return {"file": str(self.source), "notes": list(self.notes),
+        return {"file": str(self.source.resolve()), "notes": list(self.notes),
                 "aggregation": dict(self.aggregation)}
 
 
@@ -569,8 +569,8 @@ def _aggregate(frame: pd.DataFrame, config: Config, path: Path,
                                source=path)
         series, incomplete = _bin(frame[column], step, target, rule)
         pieces.append(series.to_frame())
-        aggregation[column] = (f"{_minutes(step)} {'averaged' if rule == 'mean' else 'summed'} "
-                               f"to {_minutes(target)}")
+        aggregation[column] = (f"{_minutes(step)} data {'averaged' if rule == 'mean' else 'summed'}"
+                               f" to {_minutes(target)}")
         rules.setdefault((target, rule), []).append(unit or f"'{column}'")
         if incomplete:
             dropped[column] = incomplete
@@ -587,7 +587,7 @@ def _aggregate(frame: pd.DataFrame, config: Config, path: Path,
                      "values: " + ", ".join(f"{column} {len(stamps)} (first {stamps[0]})"
                                             for column, stamps in dropped.items()))
         notes.append(text)
-    return pd.concat(pieces, axis=1).sort_index(), aggregation
+    return pd.concat(pieces, axis=1, sort=True), aggregation
 
 
 def _file_step(index: pd.DatetimeIndex, path: Path) -> pd.Timedelta | None:
