@@ -552,7 +552,10 @@ def _aggregate(frame: pd.DataFrame, config: Config, path: Path,
     step = _file_step(frame.index, path)
     if step is None:
         return frame, {}
-    pieces, aggregation, rules, dropped = [], {}, {}, {}
+    pieces: list[pd.DataFrame] = []
+    aggregation: dict[str, str] = {}
+    rules: dict[tuple[pd.Timedelta, str], list[str]] = {}
+    dropped: dict[str, list[pd.Timestamp]] = {}
     for column in frame.columns:
         target = output_resolution(config, column)
         if step == target:

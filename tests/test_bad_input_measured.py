@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from battery import all_text, assert_clean_error, assert_ok, invoke, snapshot, assert_unchanged
+from battery import all_text, assert_clean_error, assert_ok, assert_unchanged, invoke, snapshot
 
 from bpsflow.config import load_config
 from bpsflow.measured import read_measured
