@@ -84,7 +84,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
             raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got "
                                f"'{backend}'")
         config.model.backend = backend
-    data = read_measured(measured_path, config, required=settings.outputs,
+    # an output the config lacks is the config's error (check_scenario names the key)
+    required = [o for o in settings.outputs or [] if o in config.outputs] or None
+    data = read_measured(measured_path, config, required=required,
                          reference=plausibility_reference(config.run_dir.resolve()),
                          allow_implausible=allow_implausible)
     for note in data.notes:
@@ -109,7 +111,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     design = workflow.prepare_design(config, settings, out / "design", chosen_backend, jobs,
                                      show_progress)
     # the design's ensemble bounds powers and energies (a x1000 unit mistake)
-    read_measured(measured_path, config, required=settings.outputs, reference=design.results,
+    read_measured(measured_path, config, required=required, reference=design.results,
                   allow_implausible=allow_implausible)
     truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None
     outcome = Outcome()
