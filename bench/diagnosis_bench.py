@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from bpsflow.config import load_config  # noqa: E402
 from bpsflow.diagnosis.hidden import EXPECTED, MEASURE, make_case, null_measurements  # noqa: E402
 from bpsflow.diagnosis.workflow import diagnose, diagnose_many  # noqa: E402
-from bpsflow.synth import read_measured  # noqa: E402
+from bpsflow.measured import read_measured  # noqa: E402
 
 from benchlib import record, scratch  # noqa: E402
 
@@ -84,7 +84,7 @@ def cases_table(work: Path, base: Path) -> list[dict]:
         case = make_case(base, work / label, effect, value, {**FITTED_TRUTH, **extra}, seed=3,
                          noise_bound=0.005 if extra else 0.03)
         started = time.perf_counter()
-        result = diagnose(config, read_measured(case.measured), work / label / "out",
+        result = diagnose(config, read_measured(case.measured, config).frame, work / label / "out",
                           backend="surrogate", announce=quiet)
         seconds = time.perf_counter() - started
         if effect:
@@ -104,7 +104,7 @@ def cases_table(work: Path, base: Path) -> list[dict]:
 def false_alarms(work: Path, base: Path, count: int) -> tuple[float, float]:
     case = make_case(base, work / "null_clean", None, 0.0, FITTED_TRUTH, seed=0,
                      noise_bound=0.0)
-    clean = read_measured(case.measured)
+    clean = read_measured(case.measured, load_config(base)).frame
     noisy = null_measurements(clean["heating_power_w"].to_numpy(), list(range(1000, 1000 + count)))
     started = time.perf_counter()
     results = diagnose_many(load_config(base), [clean.assign(heating_power_w=v) for v in noisy],
@@ -125,7 +125,7 @@ def detection_limit(work: Path, base: Path, seeds: int,
     for value in values:
         case = make_case(base, work / f"wind_{value:g}", "wind_infiltration", value,
                          FITTED_TRUTH, seed=0, noise_bound=0.0)
-        clean = read_measured(case.measured)
+        clean = read_measured(case.measured, load_config(base)).frame
         noisy = null_measurements(clean["heating_power_w"].to_numpy(),
                                   list(range(2000, 2000 + seeds)))
         results = diagnose_many(load_config(base),
@@ -157,7 +157,7 @@ def energyplus_cases(work: Path) -> list[dict]:
                          {"glazing_dirt_correction": 0.92, "return_air_offset": -0.2}, seed=3,
                          backend="energyplus")
         started = time.perf_counter()
-        result = diagnose(load_config(base), read_measured(case.measured),
+        result = diagnose(load_config(base), read_measured(case.measured, load_config(base)).frame,
                           work / f"ep_{effect}" / "out", backend="energyplus", jobs=2,
                           announce=quiet)
         seconds = time.perf_counter() - started

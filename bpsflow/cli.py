@@ -78,6 +78,26 @@ RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.
 BackendOption = typer.Option(None, help="Override model.backend.")
 JobsOption = typer.Option(None, "--jobs", "-j", help="Parallel processes for the simulations.")
 NoProgressOption = typer.Option(False, help="No progress bars.")
+AllowImplausibleOption = typer.Option(
+    False, "--allow-implausible", help="Accept measured values far outside their plausible "
+                                       "range (a note instead of an error).")
+
+
+def _read_measured(path: Path, cfg, *, required=None, reference=None,
+                   allow_implausible: bool = False):
+    """The measured file read and checked (bpsflow.measured), its notes printed."""
+    from bpsflow.measured import read_measured
+
+    data = read_measured(path, cfg, required=required, reference=reference,
+                         allow_implausible=allow_implausible)
+    for note in data.notes:
+        console.print(f"[yellow]{note}[/yellow]", highlight=False, soft_wrap=True)
+    return data
+
+
+def _test_outputs(cfg) -> list[str]:
+    """Every output some test reports, in the config's order."""
+    return list(dict.fromkeys(o for t in cfg.model.tests for o in t.outputs))
 
 
 @app.command()
@@ -181,20 +201,22 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         keep_inputs: bool = typer.Option(False, help="Keep instance IDF/EPW/CSV files."),
         backend: str | None = typer.Option(None, help="Override model.backend."),
         measured: Path | None = typer.Option(None, help="Measured data to draw in the figures."),
+        allow_implausible: bool = AllowImplausibleOption,
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Run every instance (sampling first if needed); resume skips finished instances."""
+    from bpsflow.measured import plausibility_reference
     from bpsflow.plots import band_summary, plot_bands
     from bpsflow.sampling import SAMPLES_FILE, read_samples
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
     from bpsflow.simulation.rundir import read_results
-    from bpsflow.synth import read_measured
 
     cfg = _load(config, run_dir)
     _set_backend(cfg, backend)
-    chosen = choose_backend(cfg, err_console.print)
     rd = cfg.run_dir.resolve()
-    observed = read_measured(measured) if measured else None
+    observed = _read_measured(measured, cfg, reference=plausibility_reference(rd),
+                              allow_implausible=allow_implausible).frame if measured else None
+    chosen = choose_backend(cfg, err_console.print)
     if not (rd / SAMPLES_FILE).is_file():
         console.print(f"no samples in {rd}: sampling first")
         _sample(cfg)
@@ -261,13 +283,13 @@ def validate(config: Path = ConfigArg,
              invalid: Path | None = typer.Option(None, help="Run directory of an ensemble "
                                                     "treated as invalid predictions (e.g. the baseline)."),
              q: float | None = typer.Option(None, help="Override validation.q."),
+             allow_implausible: bool = AllowImplausibleOption,
              run_dir: Path | None = RunDirOption) -> None:
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
     from bpsflow.plots import plot_bands
     from bpsflow.simulation.rundir import read_results
-    from bpsflow.synth import read_measured
+    from bpsflow.validation import note_measured, write_outputs
     from bpsflow.validation import validate as run_validation
-    from bpsflow.validation import write_outputs
 
     cfg = _load(config, run_dir)
     if q is not None:
@@ -275,12 +297,17 @@ def validate(config: Path = ConfigArg,
             raise BpsflowError(f"--q: expected a quantile between 0 and 1, got {q}")
         cfg.validation.q = q
     rd = cfg.run_dir.resolve()
-    observed = read_measured(measured)
+    # Everything is read and checked before anything is written: a bad file leaves the
+    # previous validation.csv/.json as they were.
     results = read_results(rd)
     invalid_results = read_results(invalid.resolve()) if invalid else None
+    data = _read_measured(measured, cfg, required=_test_outputs(cfg), reference=results,
+                          allow_implausible=allow_implausible)
+    observed = data.frame
     validations = run_validation(cfg, results, observed, cfg.validation.q,
                                  cfg.validation.estimator, invalid_results, measured)
-    paths = write_outputs(validations, rd, cfg.validation.q)
+    note_measured(validations, data)
+    paths = write_outputs(validations, rd, cfg.validation.q, measured=data.record())
     plot_bands(cfg, results, rd / "figures", observed)
     table = Table(title=f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "
                         f"{1 - cfg.validation.q:.0%}, CRPS {cfg.validation.estimator})")
@@ -333,14 +360,15 @@ def sensitivity(
                                              "N inputs of each response, the others fixed."),
         screen_out: Path | None = typer.Option(None, help="Where --screen writes (default "
                                                   "<config stem>_screened.yaml beside CONFIG)."),
+        allow_implausible: bool = AllowImplausibleOption,
         run_dir: Path | None = RunDirOption,
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
+    from bpsflow.measured import plausibility_reference
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
     from bpsflow.simulation.rundir import read_results
-    from bpsflow.synth import read_measured
 
     cfg = _load(config, run_dir)
     kind = response or ("difference" if measured else "raw")
@@ -359,8 +387,14 @@ def sensitivity(
         raise BpsflowError("--screen-out needs --screen N (how many inputs to keep per response)")
     _set_backend(cfg, backend)
     mcfg = morris.morris_config(cfg, trajectories, levels)
-    observed = read_measured(measured) if measured else None
-    if observed is not None:
+    observed = None
+    if measured is not None:
+        reference = plausibility_reference(cfg.run_dir.resolve())
+        if reference is None:
+            reference = plausibility_reference(mcfg.run_dir.resolve())
+        observed = _read_measured(measured, mcfg, required=_test_outputs(mcfg),
+                                  reference=reference,
+                                  allow_implausible=allow_implausible).frame
         morris.check_measured(mcfg, observed, measured)
     chosen = choose_backend(mcfg, announce=err_console.print)
     samples = morris.prepare_morris(mcfg, chosen.name, announce=err_console.print)
@@ -480,6 +514,7 @@ def calibrate(config: Path = ConfigArg,
                                                    "cover them."),
               allow_unconverged: bool = typer.Option(False, help="Exit 0 even when NUTS has not "
                                                      "converged (R-hat, ESS, divergences)."),
+              allow_implausible: bool = AllowImplausibleOption,
               out: Path | None = typer.Option(None, help="Output folder (default "
                                                  "RUN_DIR/calibration)."),
               backend: str | None = BackendOption,
@@ -499,7 +534,7 @@ def calibrate(config: Path = ConfigArg,
     outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
                               out=out.resolve() if out else None, backend=backend, jobs=jobs,
                               truth_path=truth, settings=settings, show_progress=not no_progress,
-                              console=console)
+                              console=console, allow_implausible=allow_implausible)
     if outcome.unconverged:
         err_console.print("[bold red]not converged:[/bold red] " + " | ".join(outcome.unconverged)
                           + ("" if allow_unconverged else
@@ -517,6 +552,7 @@ def diagnose(config: Path = ConfigArg,
                                                 "RUN_DIR/diagnosis)."),
              backend: str | None = BackendOption,
              jobs: int | None = JobsOption,
+             allow_implausible: bool = AllowImplausibleOption,
              run_dir: Path | None = RunDirOption,
              no_progress: bool = NoProgressOption) -> None:
     """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
@@ -524,7 +560,8 @@ def diagnose(config: Path = ConfigArg,
 
     cfg = _load(config, run_dir)
     run_diagnose(cfg, measured, out.resolve() if out else None, backend=backend, jobs=jobs,
-                 show_progress=not no_progress, console=console)
+                 show_progress=not no_progress, console=console,
+                 allow_implausible=allow_implausible)
 
 
 def main() -> None:  # pragma: no cover

@@ -246,7 +246,10 @@ class OutputVariable(_Strict):
     name); ``meter`` names a meter instead (e.g. ``Electricity:Facility``; no
     key). ``frequency`` is ``hourly`` (hour-ending means) or ``timestep``
     (every zone time step, ``model.timesteps_per_hour`` values per hour).
-    Values are multiplied by ``scale``.
+    Values are multiplied by ``scale``. ``plausible: [low, high]`` (either may
+    be null: unbounded) replaces the plausible range of measured values of
+    this output (see :mod:`bpsflow.measured`), e.g. ``[0, null]`` for a
+    heating rate that cannot be negative.
     """
 
     variable: str | None = None
@@ -255,9 +258,15 @@ class OutputVariable(_Strict):
     unit: str = ""
     scale: float = 1.0
     frequency: Literal["hourly", "timestep"] = "hourly"
+    plausible: tuple[float | None, float | None] | None = None
 
     @model_validator(mode="after")
     def _one_source(self) -> OutputVariable:
+        if self.plausible is not None:
+            low, high = self.plausible
+            if low is not None and high is not None and low >= high:
+                raise ValueError(f"plausible: expected [low, high] with low < high, got "
+                                 f"[{low:g}, {high:g}]")
         if (self.variable is None) == (self.meter is None):
             raise ValueError("give either 'variable' (with 'key') or 'meter'")
         if self.variable is not None and not self.key:

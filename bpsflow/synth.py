@@ -238,18 +238,3 @@ def write_detailed_measurements(config: Config, sample: dict[str, float], output
     d.write_detailed(out_dir, readings, calibration, d.detailed_metadata(config, geometry,
                                                                          calibration))
     return d.true_values(config, sample, errors, boundary_c)
-
-
-def read_measured(path: Path) -> pd.DataFrame:
-    """Read a ``measured.csv`` (timestamp index, one column per output)."""
-    path = Path(path)
-    if not path.is_file():
-        raise BpsflowError(f"measured data file not found: {path}")
-    frame = pd.read_csv(path)
-    if "timestamp" not in frame.columns:
-        raise BpsflowError("measured data needs a 'timestamp' column", source=path)
-    frame["timestamp"] = pd.to_datetime(frame["timestamp"], errors="coerce")
-    if frame["timestamp"].isna().any():
-        bad = int(frame.index[frame["timestamp"].isna()][0])
-        raise BpsflowError(f"row {bad + 2}: timestamp does not parse", source=path)
-    return frame.set_index("timestamp")

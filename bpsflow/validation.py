@@ -25,6 +25,7 @@ from bpsflow import metrics
 from bpsflow.alignment import Aligned, align
 from bpsflow.config import Config
 from bpsflow.files import write_csv, write_json
+from bpsflow.measured import MeasuredData
 
 TEMPERATURE_UNITS = {"C", "°C", "DEGC", "K"}
 
@@ -99,12 +100,26 @@ def validate(config: Config, results: pd.DataFrame, measured: pd.DataFrame, q: f
     return rows
 
 
-def write_outputs(validations: list[TestValidation], out_dir: Path, q: float) -> dict[str, Path]:
-    """``validation.json``, ``validation.csv`` and the score-distribution figure."""
+def note_measured(validations: list[TestValidation], measured: MeasuredData) -> None:
+    """Add how each output's measurements were aggregated to its rows' notes."""
+    for v in validations:
+        note = measured.note_for(v.row["output"])
+        if note:
+            v.row["notes"] = "; ".join(n for n in (note, v.row["notes"]) if n)
+
+
+def write_outputs(validations: list[TestValidation], out_dir: Path, q: float,
+                  measured: dict | None = None) -> dict[str, Path]:
+    """``validation.json``, ``validation.csv`` and the score-distribution figure.
+
+    ``measured`` (:meth:`bpsflow.measured.MeasuredData.record`: the file, the
+    notes of reading it, the aggregation per column) is recorded in the JSON.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     table = pd.DataFrame([v.row for v in validations])
     csv = write_csv(table, out_dir / "validation.csv", index=False, float_format="%.6g")
-    payload = {"q": q, "type_i_risk": 1 - q, "tests": [
+    payload = {"q": q, "type_i_risk": 1 - q, **({"measured": measured} if measured else {}),
+               "tests": [
         {**v.row, "scores": {"valid": np.round(v.scores, 8).tolist(),
                              "invalid": None if v.invalid_scores is None
                              else np.round(v.invalid_scores, 8).tolist()}}

@@ -23,7 +23,7 @@ from bpsflow.diagnosis.extensions import EXTENSIONS, extend_config, gain_blocks,
 from bpsflow.diagnosis.fitting import Problem, fit_many
 from bpsflow.diagnosis.hidden import EXPECTED, MEASURE, make_case
 from bpsflow.diagnosis.workflow import diagnose, diagnose_many
-from bpsflow.synth import read_measured
+from bpsflow.measured import read_measured
 
 ROOT = Path(__file__).resolve().parents[1]
 DIAGNOSIS = ROOT / "configs" / "diagnosis.yaml"
@@ -73,7 +73,8 @@ CASES = {"wind_infiltration": 0.004, "office_gain": 150.0, "east_aperture": 1.0,
 def test_hidden_model_form_effect_is_found_and_fixed(effect, surrogate_base, tmp_path):
     value = CASES[effect]
     case = make_case(surrogate_base, tmp_path / "truth", effect, value, FITTED_TRUTH, seed=3)
-    result = diagnose(load_config(surrogate_base), read_measured(case.measured),
+    config = load_config(surrogate_base)
+    result = diagnose(config, read_measured(case.measured, config).frame,
                       tmp_path / "out", backend="surrogate", announce=quiet)
     drivers, extension = EXPECTED[effect]
     assert result.verdict == "model_form"
@@ -94,7 +95,8 @@ def test_pure_parameter_error_names_the_parameter(surrogate_base, tmp_path):
     truth = {**FITTED_TRUTH, "global_irradiance_gain": 1.3}
     case = make_case(surrogate_base, tmp_path / "truth", None, 0.0, truth, seed=5,
                      noise_bound=0.005)
-    result = diagnose(load_config(surrogate_base), read_measured(case.measured),
+    config = load_config(surrogate_base)
+    result = diagnose(config, read_measured(case.measured, config).frame,
                       tmp_path / "out", backend="surrogate", announce=quiet)
     assert result.verdict == "parameter"
     assert result.cause["parameter"] == "global_irradiance_gain"
@@ -137,7 +139,7 @@ def test_false_model_form_verdicts_stay_rare_over_null_datasets(surrogate_base, 
     """20 null datasets (different noise seeds, AR(1) noise): ≤ 10 % false model_form."""
     case = make_case(surrogate_base, tmp_path / "truth", None, 0.0, FITTED_TRUTH, seed=0,
                      noise_bound=0.0)
-    clean = read_measured(case.measured)
+    clean = read_measured(case.measured, load_config(surrogate_base)).frame
     from bpsflow.diagnosis.hidden import null_measurements
 
     noisy = null_measurements(clean["heating_power_w"].to_numpy(), list(range(100, 120)))
@@ -569,7 +571,8 @@ def test_hidden_effect_on_energyplus(effect, value, tmp_path):
     case = make_case(base, tmp_path / "truth", effect, value, {
         "glazing_dirt_correction": 0.92, "return_air_offset": -0.2}, seed=3,
         backend="energyplus")
-    result = diagnose(load_config(base), read_measured(case.measured), tmp_path / "out",
+    config = load_config(base)
+    result = diagnose(config, read_measured(case.measured, config).frame, tmp_path / "out",
                       backend="energyplus", jobs=2, announce=quiet)
     drivers, extension = EXPECTED[effect]
     assert result.verdict == "model_form"

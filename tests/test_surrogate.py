@@ -252,12 +252,13 @@ def test_chain_elimination_equals_dense_solve(config):
 
 
 def test_synthetic_measurements_on_the_surrogate(tmp_path):
-    from bpsflow.synth import Truth, read_measured, synthesize
+    from bpsflow.measured import read_measured
+    from bpsflow.synth import Truth, synthesize
 
     config = _two_day_config(tmp_path, summer=False)
     path = synthesize(config, Truth(values={"ground_reflectance": 0.3}, seed=3), tmp_path / "syn",
                       backend="surrogate")
-    measured = read_measured(path)
+    measured = read_measured(path, config).frame
     assert len(measured) == 96
     assert set(measured.columns) >= {"heating_power_w", "zone_air_temperature_c"}
     assert measured["zone_air_temperature_c"].between(-10, 60).all()

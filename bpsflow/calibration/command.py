@@ -55,8 +55,14 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
               all_scenarios: bool = False, out: Path | None = None, backend: str | None = None,
               jobs: int | None = None, truth_path: Path | None = None,
               settings: CalibrationSettings | None = None, show_progress: bool = True,
-              console: Console | None = None) -> Outcome:
+              console: Console | None = None, allow_implausible: bool = False) -> Outcome:
     """Run ``bpsflow calibrate``: one scenario (the section's top level) or all of them.
+
+    The measured file is read and checked (:mod:`bpsflow.measured`) before
+    anything runs; once the design's runs exist their values set the
+    plausibility ceiling of powers and energies, checked before anything of
+    the calibration is written. ``allow_implausible`` accepts values outside
+    their plausible range.
 
     Raises
     ------
@@ -66,8 +72,8 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     from bpsflow.calibration import workflow
     from bpsflow.calibration.report import write
     from bpsflow.calibration.scenarios import write_comparison
+    from bpsflow.measured import plausibility_reference, read_measured
     from bpsflow.simulation.backend import choose_backend
-    from bpsflow.synth import read_measured
 
     console = console or Console()
     if method not in ("bayes", "deterministic"):
@@ -78,7 +84,14 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
             raise BpsflowError(f"--backend: expected energyplus, surrogate or auto, got "
                                f"'{backend}'")
         config.model.backend = backend
-    measured = read_measured(measured_path)
+    # an output the config lacks is the config's error (check_scenario names the key)
+    required = [o for o in settings.outputs or [] if o in config.outputs] or None
+    data = read_measured(measured_path, config, required=required,
+                         reference=plausibility_reference(config.run_dir.resolve()),
+                         allow_implausible=allow_implausible)
+    for note in data.notes:
+        console.print(f"[yellow]{note}[/yellow]", highlight=False)
+    measured = data.frame
     if all_scenarios:
         if not settings.scenarios:
             raise BpsflowError("calibration.scenarios: --scenarios needs at least one scenario "
@@ -97,6 +110,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     chosen_backend = choose_backend(config, console.print).name
     design = workflow.prepare_design(config, settings, out / "design", chosen_backend, jobs,
                                      show_progress)
+    # the design's ensemble bounds powers and energies (a x1000 unit mistake)
+    read_measured(measured_path, config, required=required, reference=design.results,
+                  allow_implausible=allow_implausible)
     truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None
     outcome = Outcome()
     for scenario, _ in scenarios:

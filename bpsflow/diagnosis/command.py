@@ -15,16 +15,27 @@ from bpsflow.diagnosis.workflow import Diagnosis, diagnose, settings_of
 
 def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *,
                  backend: str | None = None, jobs: int | None = None,
-                 show_progress: bool = True, console: Console | None = None) -> Diagnosis:
+                 show_progress: bool = True, console: Console | None = None,
+                 allow_implausible: bool = False) -> Diagnosis:
     """Diagnose ``config`` against ``measured_path``; write everything under ``out``.
 
-    ``out`` defaults to ``RUN_DIR/diagnosis``. Returns the :class:`Diagnosis`.
+    ``out`` defaults to ``RUN_DIR/diagnosis``. The measured file is read and
+    checked (:mod:`bpsflow.measured`) before anything runs or is written;
+    ``allow_implausible`` accepts values outside their plausible range.
+    Returns the :class:`Diagnosis`.
     """
+    from bpsflow.measured import plausibility_reference, read_measured
     from bpsflow.simulation.backend import choose_backend
-    from bpsflow.synth import read_measured
 
     console = console or Console()
-    measured = read_measured(measured_path)
+    wanted = settings_of(config).output
+    data = read_measured(measured_path, config,
+                         required=[wanted] if wanted in config.outputs else None,
+                         reference=plausibility_reference(config.run_dir.resolve()),
+                         allow_implausible=allow_implausible)
+    for note in data.notes:
+        console.print(f"[yellow]{note}[/yellow]", highlight=False)
+    measured = data.frame
     if backend is not None:
         config = config.model_copy(deep=True, update={})
         config.model.backend = backend

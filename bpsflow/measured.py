@@ -1,0 +1,648 @@
+"""Measured data: the one reader every command that takes ``--measured`` goes through.
+
+Format
+------
+A UTF-8 CSV with a header line. One column is ``timestamp``; the others are
+named like the config's outputs (``heating_power_w``), in the output's
+declared ``unit``. Other numeric columns are kept (``bpsflow diagnose`` tries
+them as drivers); other text columns are left out, with a note. An empty cell
+is a missing value; the texts ``nan``, ``inf`` and ``-inf`` are errors (leave
+the cell empty instead). Numbers with thousands separators (quoted
+``"1,234.5"``, ``"1,234,567"``) are read as such, with a note; ``"1,234"``
+(a thousands separator or a decimal comma?) and ``"27,5"`` are errors.
+
+Timestamps are hour-ENDING, like the simulated results (the value at 01:00
+covers 00:00–01:00; EnergyPlus reports the same way, see
+:mod:`bpsflow.alignment`), in the model's local standard time. Stamps with a
+UTC offset (``2025-12-05T01:00:00+01:00``) are converted, each by its own
+offset, to the model's standard time, which is the time zone of the weather
+file's ``LOCATION`` header (field 9, hours from UTC); mixed offsets (daylight
+saving time) are therefore converted row by row, never shifted as a block.
+Files that mix stamps with and without an offset are refused. Unsorted stamps
+are sorted (with a note); a repeated stamp is an error.
+
+Rows outside every test window (a test's days, warm-up included) are left out
+with a note; a file with no row in any window is an error.
+
+Resolution
+----------
+The model reports hourly (an output with ``frequency: timestep`` at every
+zone time step, ``60 / model.timesteps_per_hour`` minutes). Finer measured data
+are aggregated to the output's resolution into hour-ending (step-ending) bins,
+so 00:15, 00:30, 00:45 and 01:00 make the hour ending 01:00. The rule follows
+the output's declared unit:
+
+* mean for powers, temperatures and shares: ``W``, ``kW``, ``MW``, ``W/m2``,
+  ``C``/``°C``, ``K``, ``%`` (and for columns that are not outputs);
+* sum for energies: ``J``, ``kJ``, ``MJ``, ``GJ``, ``Wh``, ``kWh``, ``MWh``.
+
+A bin missing some of its sub-steps (a missing row or an empty cell) is left
+out (not averaged from fewer values); the note counts them. A step the tool
+cannot aggregate is an error naming the file and the step: irregular steps,
+stamps off the step's grid, a step that does not divide the output's
+resolution, or a step coarser than it. An output of another unit cannot be
+aggregated (no rule): declare its unit.
+
+Plausibility
+------------
+Values far outside a physical range for the declared unit are an error naming
+the column, the first bad line, the range and the likely unit mistake:
+
+* ``C``/``°C``: [-60, 100]; ``K``: [200, 380]; ``%``: [-5, 105];
+* powers and energies (``W``, ``kWh``, ...): at most 20 times the largest
+  magnitude the simulated ensemble reports for that output, when results are
+  at hand (a ×1000 unit mistake is far above; an ensemble that is all zero
+  sets no ceiling). Without results, no ceiling is applied.
+
+``outputs.NAME.plausible: [low, high]`` in the config replaces the range of an
+output (``[0, null]``: non-negative, no ceiling; ``[null, null]``: unchecked);
+``--allow-implausible`` turns these errors into notes for one command.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import io
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bpsflow.config import Config, test_dates
+from bpsflow.errors import BpsflowError
+
+TIMESTAMP_COLUMN = "timestamp"
+
+#: Units aggregated by the mean of their sub-steps (rates and states), upper case.
+MEAN_UNITS = frozenset({"W", "KW", "MW", "W/M2", "W/M²", "C", "°C", "DEGC", "K", "%"})
+#: Units aggregated by the sum of their sub-steps (energies per step), upper case.
+SUM_UNITS = frozenset({"J", "KJ", "MJ", "GJ", "WH", "KWH", "MWH"})
+#: Physical ranges (low, high) per unit, upper case; powers and energies are relative.
+PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
+    "C": (-60.0, 100.0), "°C": (-60.0, 100.0), "DEGC": (-60.0, 100.0),
+    "K": (200.0, 380.0), "%": (-5.0, 105.0)}
+#: Ceiling of a power or energy: this many times the ensemble's largest magnitude.
+RELATIVE_CEILING = 20.0
+
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_NON_FINITE = re.compile(r"^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
+_THOUSANDS = re.compile(r"^[+-]?\d{1,3}(,\d{3})+\.\d*$|^[+-]?\d{1,3}(,\d{3}){2,}$")
+_AMBIGUOUS_COMMA = re.compile(r"^[+-]?\d{1,3},\d{3}$")
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+$")
+_OFFSET = re.compile(r"\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?\s*(Z|[+-]\d{2}:?\d{2})$")
+
+
+@dataclass(frozen=True)
+class MeasuredData:
+    """Measured values ready for the commands, and what was done to read them.
+
+    Attributes
+    ----------
+    frame : DataFrame
+        Index: hour-ending (step-ending) timestamps, naive, in the model's
+        local standard time, sorted and unique. Columns: the file's numeric
+        columns as floats, at the resolution of the output they name.
+    source : Path
+        The file read.
+    notes : tuple of str
+        What the user must know (aggregation, conversion, rows left out),
+        each naming the file; the commands print them.
+    aggregation : dict
+        Column -> how it was aggregated (``"15-min data averaged to hourly"``), for
+        the columns that were.
+    """
+
+    frame: pd.DataFrame
+    source: Path
+    notes: tuple[str, ...] = ()
+    aggregation: dict[str, str] = field(default_factory=dict)
+
+    def note_for(self, column: str) -> str:
+        """The aggregation applied to ``column`` as a short note ("" if none)."""
+        rule = self.aggregation.get(column)
+        return f"measured: {rule}" if rule else ""
+
+    def record(self) -> dict:
+        """What ``validation.json`` records about the measured file."""
+        return {"file": str(self.source.resolve()), "notes": list(self.notes),
+                "aggregation": dict(self.aggregation)}
+
+
+def read_measured(path: Path | str, config: Config, *, required: Sequence[str] | None = None,
+                  reference: pd.DataFrame | None = None,
+                  allow_implausible: bool = False) -> MeasuredData:
+    """Read, check and aggregate a measured data file (see the module docstring).
+
+    Parameters
+    ----------
+    path : Path or str
+        The CSV file.
+    config : Config
+        Its outputs (names, units, resolution, plausible ranges), tests
+        (windows) and weather file (time zone).
+    required : sequence of str, optional
+        Output columns the command needs; by default at least one of the
+        config's outputs.
+    reference : DataFrame, optional
+        Tidy simulated results (``output``, ``value``) that set the ceiling
+        of powers and energies.
+    allow_implausible : bool
+        Report values outside their plausible range as notes, not errors.
+
+    Returns
+    -------
+    MeasuredData
+
+    Raises
+    ------
+    BpsflowError
+        One error naming the file, the column and the first bad line
+        (1-based, the header is line 1) for any problem of the file.
+    """
+    path = Path(path)
+    notes: list[str] = []
+    header, rows, lines = _csv_rows(_read_text(path), path)
+    stamp_column = _timestamp_column(header, path)
+    columns = _value_columns(header, stamp_column, config, required, path, notes)
+    table = {name: [row[i] for row in rows] for i, name in enumerate(header)}
+    stamps = _parse_stamps(table[stamp_column], lines, config, path, notes)
+    values = {}
+    for name in columns:
+        parsed = _parse_values(table[name], lines, name, path, notes,
+                               strict=name in config.outputs)
+        if parsed is not None:
+            values[name] = parsed
+    frame = pd.DataFrame(values, index=stamps)
+    frame, lines = _sorted_unique(frame, lines, path, notes)
+    _check_plausible(frame, lines, config, reference, allow_implausible, path, notes)
+    frame = _keep_test_windows(frame, config, path, notes)
+    frame, aggregation = _aggregate(frame, config, path, notes)
+    frame.index.name = TIMESTAMP_COLUMN
+    return MeasuredData(frame=frame, source=path, notes=tuple(notes), aggregation=aggregation)
+
+
+def plausibility_reference(run_dir: Path) -> pd.DataFrame | None:
+    """The run directory's simulated results for the plausibility ceiling, if any are readable."""
+    from bpsflow.simulation.rundir import read_results
+
+    try:
+        return read_results(run_dir)
+    except BpsflowError:
+        return None
+
+
+def output_resolution(config: Config, column: str) -> pd.Timedelta:
+    """The model's reporting step for ``column``: an hour, or a zone time step."""
+    output = config.outputs.get(column)
+    if output is not None and output.frequency == "timestep":
+        return pd.Timedelta(minutes=60 / config.model.timesteps_per_hour)
+    return pd.Timedelta(hours=1)
+
+
+def aggregation_rule(unit: str) -> str | None:
+    """``"mean"`` or ``"sum"`` for a declared unit, None when the unit has no rule."""
+    key = unit.strip().upper()
+    if key in MEAN_UNITS:
+        return "mean"
+    if key in SUM_UNITS:
+        return "sum"
+    return None
+
+
+# Reading the file ----------------------------------------------------------
+
+def _read_text(path: Path) -> str:
+    """The file's text; a clear error for missing, empty, compressed or binary files."""
+    if not path.exists():
+        raise BpsflowError(f"measured data file not found: {path}")
+    if not path.is_file():
+        raise BpsflowError("measured data must be a CSV file, not a folder", source=path)
+    data = path.read_bytes()
+    if not data.strip():
+        raise BpsflowError("the measured data file is empty; expected a header line "
+                           "'timestamp,<output>,...' and one row per time step", source=path)
+    if data[:2] == b"\x1f\x8b":
+        raise BpsflowError("this is a gzip-compressed file; decompress it and pass the CSV",
+                           source=path)
+    if data[:4] == b"PK\x03\x04":
+        raise BpsflowError("this is a ZIP archive (or a spreadsheet); export the sheet as CSV",
+                           source=path)
+    if b"\x00" in data:
+        line = data[:data.index(b"\x00")].count(b"\n") + 1
+        raise BpsflowError(f"line {line}: binary content (a NUL byte); expected CSV text",
+                           source=path)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise BpsflowError(f"line {line}: not UTF-8 text (byte 0x{data[exc.start]:02x}); "
+                           f"expected a CSV file saved as UTF-8", source=path) from None
+
+
+def _csv_rows(text: str, path: Path) -> tuple[list[str], list[list[str]], np.ndarray]:
+    """Header, data rows and each row's 1-based line number; blank lines are skipped."""
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header: list[str] | None = None
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    try:
+        for record in reader:
+            if not record or all(not cell.strip() for cell in record):
+                continue
+            if header is None:
+                header = [cell.strip() for cell in record]
+                header_line = reader.line_num
+                continue
+            if len(record) != len(header):
+                raise BpsflowError(f"line {reader.line_num}: {len(record)} fields, but the header "
+                                   f"(line {header_line}) has {len(header)}", source=path)
+            rows.append(record)
+            lines.append(reader.line_num)
+    except csv.Error as exc:
+        raise BpsflowError(f"line {reader.line_num}: not valid CSV ({exc})", source=path) from None
+    if header is None:
+        raise BpsflowError("the measured data file has no header line", source=path)
+    if not rows:
+        raise BpsflowError(f"the measured data file has a header but no data rows (columns: "
+                           f"{', '.join(header)})", source=path)
+    return header, rows, np.asarray(lines)
+
+
+def _timestamp_column(header: list[str], path: Path) -> str:
+    """The header's ``timestamp`` column (case-insensitive); errors for none or repeats."""
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise BpsflowError(f"line 1: column '{name}' appears twice in the header", source=path)
+        seen.add(name)
+    matches = [name for name in header if name.lower() == TIMESTAMP_COLUMN]
+    if not matches:
+        hint = (" (the file looks separated by ';': expected ',')"
+                if len(header) == 1 and ";" in header[0] else "")
+        raise BpsflowError(f"line 1: no '{TIMESTAMP_COLUMN}' column (columns: "
+                           f"{', '.join(header)}){hint}", source=path)
+    return matches[0]
+
+
+def _value_columns(header: list[str], stamp_column: str, config: Config,
+                   required: Sequence[str] | None, path: Path, notes: list[str]) -> list[str]:
+    """The value columns; errors when a required output (or every output) is missing."""
+    columns = [name for name in header if name != stamp_column]
+    unknown = [name for name in columns if name not in config.outputs]
+    needed = list(required) if required is not None else []
+    missing = [name for name in needed if name not in columns]
+    if missing or not any(name in config.outputs for name in columns):
+        wanted = missing or sorted(config.outputs)
+        what = (f"no column '{missing[0]}'" + (f" (nor {', '.join(missing[1:])})"
+                                              if len(missing) > 1 else "")
+                if missing else "none of the config's outputs")
+        raise BpsflowError(f"line 1: {what}; columns: {', '.join(columns) or 'none'}; expected "
+                           f"output(s) {', '.join(wanted)}{_suggestion(wanted, unknown)}",
+                           source=path)
+    for name in unknown:
+        close = difflib.get_close_matches(name, list(config.outputs), n=1, cutoff=0.8)
+        if close:
+            notes.append(f"{path.name}: column '{name}' is not an output (did you mean "
+                         f"'{close[0]}'?); read as an extra column")
+    return columns
+
+
+def _suggestion(wanted: Iterable[str], unknown: list[str]) -> str:
+    """``"; 'heating_power_W' looks like 'heating_power_w'"`` for close misspellings."""
+    pairs = []
+    for name in wanted:
+        close = difflib.get_close_matches(name, unknown, n=1, cutoff=0.6)
+        if close:
+            pairs.append(f"'{close[0]}' looks like '{name}' (misspelled?)")
+    return "; " + ", ".join(pairs) if pairs else ""
+
+
+# Timestamps ---------------------------------------------------------------
+
+def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Path,
+                  notes: list[str]) -> pd.DatetimeIndex:
+    """Naive timestamps in the model's local standard time (UTC offsets converted)."""
+    series = pd.Series(texts, dtype=object).str.strip()
+    offsets = series.str.extract(_OFFSET, expand=False)
+    aware = offsets.notna().to_numpy()
+    if aware.any() and not aware.all():
+        first = int(np.flatnonzero(~aware if aware[0] else aware)[0])
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}', line {lines[first]}: "
+                           f"'{texts[first]}' {'has no' if aware[0] else 'has a'} UTC offset "
+                           f"but line {lines[0]} {'has one' if aware[0] else 'does not'}; "
+                           f"expected one convention for every stamp", source=path)
+    parsed = pd.to_datetime(series, format="ISO8601", errors="coerce", utc=True)
+    if not aware.any():
+        parsed = parsed.dt.tz_localize(None)
+        if parsed.isna().any():
+            # Not ISO 8601 (e.g. 12/05/2025 01:00): let pandas infer each stamp.
+            parsed = pd.to_datetime(series, format="mixed", errors="coerce")
+    bad = np.flatnonzero(parsed.isna().to_numpy())
+    if len(bad):
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}', line {lines[bad[0]]}: "
+                           f"'{texts[bad[0]]}' is not a date and time (expected e.g. "
+                           f"2025-12-05 01:00:00, hour-ending)", source=path)
+    if not aware.any():
+        return pd.DatetimeIndex(parsed)
+    hours = model_utc_offset(config, path)
+    local = parsed.dt.tz_convert(None) + pd.Timedelta(hours=hours)
+    found = sorted(set(offsets))
+    dst = (" (more than one offset, e.g. daylight saving time: each stamp converted by its "
+           "own)" if len(found) > 1 else "")
+    notes.append(f"{path.name}: timestamps with UTC offset {', '.join(found)} converted to the "
+                 f"model's local standard time (UTC{_format_offset(hours)}, the weather "
+                 f"file's time zone){dst}")
+    return pd.DatetimeIndex(local)
+
+
+def model_utc_offset(config: Config, source: Path) -> float:
+    """The model's standard time zone in hours from UTC (EPW ``LOCATION`` field 9).
+
+    Raises
+    ------
+    BpsflowError
+        When the weather file does not state it: time-zone-aware stamps are
+        then refused (``source`` names the measured file).
+    """
+    from bpsflow.weather import read_epw
+
+    try:
+        fields = read_epw(config.model.weather).header[0].split(",")
+        hours = float(fields[8])
+    except (BpsflowError, IndexError, ValueError):
+        raise BpsflowError(f"timestamps carry a UTC offset, but the model's time zone is not "
+                           f"known (the weather file {config.model.weather} states none in its "
+                           f"LOCATION line, field 9); write the stamps in the model's local "
+                           f"standard time without an offset", source=source) from None
+    if not -12.0 <= hours <= 14.0:
+        raise BpsflowError(f"timestamps carry a UTC offset, but the weather file's time zone "
+                           f"({hours:g} h, LOCATION field 9) is not a UTC offset; write the "
+                           f"stamps in local standard time without an offset", source=source)
+    return hours
+
+
+def _format_offset(hours: float) -> str:
+    sign = "+" if hours >= 0 else "-"
+    minutes = round(abs(hours) * 60)
+    return f"{sign}{minutes // 60:02d}:{minutes % 60:02d}"
+
+
+def _sorted_unique(frame: pd.DataFrame, lines: np.ndarray, path: Path,
+                   notes: list[str]) -> tuple[pd.DataFrame, np.ndarray]:
+    """Error on a repeated stamp; sort unsorted stamps (with a note)."""
+    repeated = frame.index.duplicated(keep="first")
+    if repeated.any():
+        i = int(np.flatnonzero(repeated)[0])
+        first = int(np.flatnonzero(frame.index == frame.index[i])[0])
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}', line {lines[i]}: {frame.index[i]} "
+                           f"repeats line {lines[first]}; expected one row per time step",
+                           source=path)
+    if frame.index.is_monotonic_increasing:
+        return frame, lines
+    step_back = int(np.flatnonzero(np.diff(frame.index.asi8) < 0)[0]) + 1
+    notes.append(f"{path.name}: timestamps are not in order (line {lines[step_back]} goes back "
+                 f"in time); rows sorted by time")
+    order = np.argsort(frame.index.asi8, kind="stable")
+    return frame.iloc[order], lines[order]
+
+
+# Values --------------------------------------------------------------------
+
+def _parse_values(texts: list[str], lines: np.ndarray, column: str, path: Path,
+                  notes: list[str], strict: bool) -> np.ndarray | None:
+    """A column's numbers (empty cells NaN).
+
+    ``strict`` (an output's column): anything else is an error naming the
+    first bad line. Otherwise a column that is not numeric is left out with a
+    note (returns None).
+    """
+    cells = pd.Series(texts, dtype=object).str.strip()
+    empty = (cells == "").to_numpy()
+    number = cells.str.fullmatch(_NUMBER).to_numpy(dtype=bool)
+    thousands = cells.str.fullmatch(_THOUSANDS).to_numpy(dtype=bool)
+    bad = np.flatnonzero(~(empty | number | thousands))
+    if len(bad):
+        text = texts[bad[0]].strip()
+        if not strict:
+            notes.append(f"{path.name}: column '{column}' is not an output and not numeric "
+                         f"(line {lines[bad[0]]}: '{text}'); left out")
+            return None
+        raise BpsflowError(f"column '{column}', line {lines[bad[0]]}: {_why_not_number(text)}",
+                           source=path)
+    values = np.full(len(cells), np.nan)
+    values[number] = cells[number].astype(float).to_numpy()
+    if thousands.any():
+        values[thousands] = cells[thousands].str.replace(",", "").astype(float).to_numpy()
+        first = int(np.flatnonzero(thousands)[0])
+        notes.append(f"{path.name}: column '{column}': {int(thousands.sum())} value(s) with "
+                     f"thousands separators read as numbers (line {lines[first]}: "
+                     f"'{texts[first].strip()}' -> {values[first]:g})")
+    return values
+
+
+def _why_not_number(text: str) -> str:
+    if _NON_FINITE.match(text):
+        return (f"'{text}' is not a finite number; leave the cell empty for a missing value")
+    if _AMBIGUOUS_COMMA.match(text):
+        return (f"'{text}' is ambiguous (a thousands separator or a decimal comma?); write it "
+                f"without the comma, with '.' as the decimal point")
+    if _DECIMAL_COMMA.match(text):
+        return f"'{text}' has a decimal comma; expected '.' as the decimal point"
+    return f"'{text}' is not a number (expected a number, or an empty cell for a missing value)"
+
+
+# Plausibility ---------------------------------------------------------------
+
+def _check_plausible(frame: pd.DataFrame, lines: np.ndarray, config: Config,
+                     reference: pd.DataFrame | None, allow: bool, path: Path,
+                     notes: list[str]) -> None:
+    """Error (or, with ``allow``, a note) for the first value far outside its range."""
+    for column in frame.columns:
+        if column not in config.outputs:
+            continue
+        low, high, why = plausible_range(config, column, reference)
+        values = frame[column].to_numpy()
+        outside = ((values < low) | (values > high)) & ~np.isnan(values)
+        if not outside.any():
+            continue
+        i = int(np.flatnonzero(outside)[0])
+        unit = config.outputs[column].unit
+        message = (f"column '{column}' [{unit}], line {lines[i]}: {values[i]:g} is far outside "
+                   f"the plausible range [{low:g}, {high:g}] ({why}; {int(outside.sum())} "
+                   f"value(s) outside){_unit_mistake(values[i], low, high, unit)}")
+        if not allow:
+            raise BpsflowError(f"{message}. If the values are right, set outputs.{column}."
+                               f"plausible: [low, high] in the config, or pass "
+                               f"--allow-implausible", source=path)
+        notes.append(f"{path.name}: {message} (accepted: --allow-implausible)")
+
+
+def plausible_range(config: Config, column: str, reference: pd.DataFrame | None
+                    ) -> tuple[float, float, str]:
+    """(low, high, where it comes from) of an output's plausible values."""
+    output = config.outputs[column]
+    unit = output.unit.strip().upper()
+    if output.plausible is not None:
+        low, high = output.plausible
+        return (-np.inf if low is None else low, np.inf if high is None else high,
+                f"outputs.{column}.plausible")
+    if unit in PHYSICAL_RANGES:
+        low, high = PHYSICAL_RANGES[unit]
+        return low, high, f"physical range for {output.unit}"
+    if aggregation_rule(unit) is not None and reference is not None:
+        simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
+        scale = float(np.nanmax(np.abs(simulated))) if simulated.size else 0.0
+        if np.isfinite(scale) and scale > 0:
+            ceiling = RELATIVE_CEILING * scale
+            return -ceiling, ceiling, (f"{RELATIVE_CEILING:g} × the largest simulated "
+                                       f"magnitude {scale:.4g}")
+    return -np.inf, np.inf, "unchecked"
+
+
+def _unit_mistake(value: float, low: float, high: float, unit: str) -> str:
+    """A guess at the unit mistake behind an implausible value ("" when none fits)."""
+    key = unit.strip().upper()
+    if key in ("C", "°C", "DEGC") and low <= value - 273.15 <= high:
+        return "; kelvin in a °C column?"
+    if key == "K" and low <= value + 273.15 <= high:
+        return "; °C in a kelvin column?"
+    for factor, guess in ((1000.0, "×1000: milli-units (mK, mW) or a missing decimal point?"),
+                          (1e6, "×10⁶: a unit prefix mistake?"),
+                          (100.0, "×100: a missing decimal point?")):
+        if low <= value / factor <= high:
+            return f"; {guess}"
+    return ""
+
+
+# Windows and resolution -----------------------------------------------------
+
+def _keep_test_windows(frame: pd.DataFrame, config: Config, path: Path,
+                       notes: list[str]) -> pd.DataFrame:
+    """Rows whose hour-ending bin lies in some test's days (warm-up included)."""
+    year = config.model.year
+    windows = []
+    for test in config.model.tests:
+        first, _, last = test_dates(test, year)
+        windows.append((pd.Timestamp(first), pd.Timestamp(last) + pd.Timedelta(days=1)))
+    bins = frame.index.ceil("h")
+    inside = np.zeros(len(frame), bool)
+    for start, end in windows:
+        inside |= (bins > start) & (bins <= end)
+    if inside.all():
+        return frame
+    expected = "; ".join(f"{t.name}: {s} .. {e}" for t, (s, e) in zip(config.model.tests, windows))
+    if not inside.any():
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}': no row falls in any test window (the "
+                           f"file runs from {frame.index[0]} to {frame.index[-1]}; expected "
+                           f"hour-ending stamps in {expected}, year {year} = model.year)",
+                           source=path)
+    notes.append(f"{path.name}: {int((~inside).sum())} of {len(frame)} rows lie outside every "
+                 f"test window and were left out (kept {frame.index[inside][0]} .. "
+                 f"{frame.index[inside][-1]})")
+    return frame.loc[inside]
+
+
+def _aggregate(frame: pd.DataFrame, config: Config, path: Path,
+               notes: list[str]) -> tuple[pd.DataFrame, dict[str, str]]:
+    """Sub-step data aggregated to each column's model resolution (hour- or step-ending)."""
+    step = _file_step(frame.index, path)
+    if step is None:
+        return frame, {}
+    pieces: list[pd.DataFrame] = []
+    aggregation: dict[str, str] = {}
+    rules: dict[tuple[pd.Timedelta, str], list[str]] = {}
+    dropped: dict[str, list[pd.Timestamp]] = {}
+    for column in frame.columns:
+        target = output_resolution(config, column)
+        if step == target:
+            pieces.append(frame[[column]])
+            continue
+        _check_step(step, target, column, path)
+        unit = config.outputs[column].unit if column in config.outputs else ""
+        rule = aggregation_rule(unit) if column in config.outputs else "mean"
+        if rule is None:
+            raise BpsflowError(f"column '{column}': {_minutes(step)} data must be aggregated to "
+                               f"{_minutes(target)}, but its unit '{unit}' has no rule (mean "
+                               f"for {', '.join(sorted(MEAN_UNITS))}; sum for "
+                               f"{', '.join(sorted(SUM_UNITS))}); declare outputs.{column}.unit",
+                               source=path)
+        series, incomplete = _bin(frame[column], step, target, rule)
+        pieces.append(series.to_frame())
+        aggregation[column] = (f"{_minutes(step)} data {'averaged' if rule == 'mean' else 'summed'}"
+                               f" to {_minutes(target)}")
+        rules.setdefault((target, rule), []).append(unit or f"'{column}'")
+        if incomplete:
+            dropped[column] = incomplete
+    if aggregation:
+        targets: dict[pd.Timedelta, list[str]] = {}
+        for (target, rule), units in rules.items():
+            targets.setdefault(target, []).append(f"{rule} for {', '.join(dict.fromkeys(units))}")
+        how = "; ".join(f"to {_minutes(target)}: " * (len(targets) > 1) + "; ".join(parts)
+                        for target, parts in targets.items())
+        into = _minutes(next(iter(targets))) if len(targets) == 1 else "the model's resolution"
+        text = f"{path.name}: {_minutes(step)} data aggregated to {into} ({how}; hour-ending bins)"
+        if dropped:
+            text += ("; bins missing some of their sub-steps left out, not averaged from fewer "
+                     "values: " + ", ".join(f"{column} {len(stamps)} (first {stamps[0]})"
+                                            for column, stamps in dropped.items()))
+        notes.append(text)
+    return pd.concat(pieces, axis=1, sort=True), aggregation
+
+
+def _file_step(index: pd.DatetimeIndex, path: Path) -> pd.Timedelta | None:
+    """The file's time step (the most common spacing); errors for irregular stamps."""
+    if len(index) < 2:
+        return None
+    gaps = pd.TimedeltaIndex(index[1:] - index[:-1])
+    step = gaps.value_counts().index[0]
+    irregular = np.flatnonzero(gaps % step != pd.Timedelta(0))
+    if len(irregular):
+        i = int(irregular[0]) + 1
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}': irregular time steps ({index[i - 1]} "
+                           f"to {index[i]} is {_minutes(gaps[i - 1])}, the file's step is "
+                           f"{_minutes(step)}); expected a constant step", source=path)
+    off_grid = np.flatnonzero((index - index.floor("h")) % step != pd.Timedelta(0))
+    if len(off_grid) and pd.Timedelta(hours=1) % step == pd.Timedelta(0):
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}': {index[off_grid[0]]} is not on the "
+                           f"{_minutes(step)} grid of the hour; expected step-ending stamps "
+                           f"(e.g. :15, :30, :45, :00)", source=path)
+    return step
+
+
+def _check_step(step: pd.Timedelta, target: pd.Timedelta, column: str, path: Path) -> None:
+    """Error when ``step`` cannot be aggregated to ``target``."""
+    if step > target:
+        raise BpsflowError(f"column '{column}': the file's time step ({_minutes(step)}) is "
+                           f"coarser than the model's resolution for it ({_minutes(target)}); "
+                           f"expected {_minutes(target)} data or finer", source=path)
+    if target % step != pd.Timedelta(0):
+        raise BpsflowError(f"column '{column}': the file's time step ({_minutes(step)}) does "
+                           f"not divide the model's resolution ({_minutes(target)}); expected "
+                           f"e.g. 5-, 10-, 15- or 30-min data", source=path)
+
+
+def _bin(series: pd.Series, step: pd.Timedelta, target: pd.Timedelta, rule: str
+         ) -> tuple[pd.Series, list[pd.Timestamp]]:
+    """Step-ending bins of ``target``: mean or sum of complete bins; incomplete ones left out.
+
+    Returns the aggregated series (complete bins only) and the end stamps of
+    the bins that had some but not all of their sub-steps.
+    """
+    per_bin = int(target / step)
+    groups = series.groupby(series.index.ceil(target))
+    count = groups.count()
+    value = groups.mean() if rule == "mean" else groups.sum(min_count=1)
+    complete = count == per_bin
+    incomplete = list(count.index[(count > 0) & ~complete])
+    return value[complete], incomplete
+
+
+def _minutes(step: pd.Timedelta) -> str:
+    minutes = step / pd.Timedelta(minutes=1)
+    if minutes >= 60 and minutes % 60 == 0:
+        return "hourly" if minutes == 60 else f"{minutes / 60:g}-hour"
+    return f"{minutes:g}-min"

@@ -1,0 +1,494 @@
+"""Bad measured data, through the CLI: one clear error (exit 2) or a stated correction.
+
+Every case runs on a finished surrogate run (5 instances of the two-test short
+config) whose ``validation.csv``/``validation.json`` already exist; a failing
+command must leave them byte-identical. Beside the battery: 15-minute data of a
+known hourly truth give the hourly truth's metrics (and the report says it
+aggregated), energy columns are summed, timestep outputs keep their step.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from battery import all_text, assert_clean_error, assert_ok, assert_unchanged, invoke, snapshot
+
+from bpsflow.config import load_config
+from bpsflow.measured import read_measured
+
+from conftest import short_raw, write_config
+
+HEATING = "heating_power_w"
+AIR = "zone_air_temperature_c"
+
+
+@dataclass
+class Case:
+    """A copy of the finished run: the config, its run directory, the hourly truth."""
+
+    config: Path
+    run_dir: Path
+    hourly: pd.DataFrame          # synth's measured.csv (timestamp index)
+    folder: Path
+
+    def write(self, frame: pd.DataFrame, name: str = "measured.csv") -> Path:
+        path = self.folder / name
+        frame.to_csv(path, index_label="timestamp")
+        return path
+
+    def text(self, content: str | bytes, name: str = "measured.csv") -> Path:
+        path = self.folder / name
+        if isinstance(content, bytes):
+            path.write_bytes(content)
+        else:
+            path.write_text(content)
+        return path
+
+    def csv_lines(self) -> list[str]:
+        """The hourly truth as CSV lines (header first)."""
+        return self.hourly.to_csv(index_label="timestamp").splitlines()
+
+    def validate(self, measured: Path, *extra: object):
+        return invoke("validate", self.config, "--measured", measured, "--run-dir", self.run_dir,
+                      *extra)
+
+    def validation(self) -> dict:
+        return json.loads((self.run_dir / "validation.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """A surrogate run, its synthetic measurements and a first validation (module-wide)."""
+    folder = tmp_path_factory.mktemp("measured_base")
+    raw = short_raw(samples=5)
+    raw["model"]["backend"] = "surrogate"
+    config = write_config(folder, raw)
+    assert_ok(invoke("run", config, "--no-progress"))
+    truth = folder / "truth.yaml"
+    truth.write_text("seed: 3\nvalues: {}\n")
+    assert_ok(invoke("synth", config, "--truth", truth))
+    assert_ok(invoke("validate", config, "--measured", folder / "run" / "truth" / "measured.csv"))
+    return folder
+
+
+@pytest.fixture
+def case(finished, tmp_path) -> Case:
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished / "run", run_dir)
+    hourly = pd.read_csv(run_dir / "truth" / "measured.csv", parse_dates=["timestamp"],
+                         index_col="timestamp")
+    return Case(config=finished / "case.yaml", run_dir=run_dir, hourly=hourly, folder=tmp_path)
+
+
+def _fails_cleanly(case: Case, measured: Path, *needles: str, command: str = "validate",
+                   extra: tuple = ()) -> str:
+    """``command`` on ``measured`` exits 2 naming the file and needles; the run dir is intact."""
+    before = snapshot(case.run_dir)
+    assert "validation.json" in before and "validation.csv" in before
+    if command == "validate":
+        result = case.validate(measured, *extra)
+    else:
+        result = invoke(command, case.config, "--measured", measured, "--run-dir", case.run_dir,
+                        *extra)
+    text = assert_clean_error(result, measured.name, *needles)
+    assert_unchanged(before, case.run_dir)
+    assert set(snapshot(case.run_dir)) == set(before), "a failing command wrote files"
+    return text
+
+
+def _metrics(case: Case) -> dict[tuple[str, str], dict]:
+    return {(t["test"], t["output"]): t for t in case.validation()["tests"]}
+
+
+def _assert_same_metrics(a: dict, b: dict, rel: float = 1e-9) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        for metric in ("threshold", "nmbe", "cv_rmse", "nmcrps", "mbe_c", "rmse_c", "mcrps_c"):
+            if metric in a[key]:
+                assert b[key][metric] == pytest.approx(a[key][metric], rel=rel, abs=1e-12), \
+                    (key, metric)
+
+
+# ---------------------------------------------------------------------------
+# Values
+
+
+def test_text_in_a_value_column(case):
+    lines = case.csv_lines()
+    lines[30] = lines[30].rsplit(",", 1)[0] + ",warm"
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{AIR}'", "line 31",
+                   "'warm' is not a number")
+
+
+@pytest.mark.parametrize("token", ["inf", "-inf", "nan", "NaN", "Infinity"])
+def test_non_finite_text_is_an_error_and_keeps_the_previous_validation(case, token):
+    lines = case.csv_lines()
+    header = lines[0].split(",")
+    fields = lines[40].split(",")
+    fields[header.index(HEATING)] = token
+    lines[40] = ",".join(fields)
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{HEATING}'", "line 41",
+                   "not a finite number")
+
+
+def test_thousands_separators_are_read_and_stated(case):
+    frame = case.hourly.copy()
+    frame[HEATING] = frame[HEATING] * 0 + 1234.5     # every hour 1,234.5 W
+    plain = case.write(frame, "plain.csv")
+    assert_ok(case.validate(plain))
+    expected = _metrics(case)
+    quoted = case.text(plain.read_text().replace(",1234.5,", ',"1,234.5",'), "quoted.csv")
+    assert '"1,234.5"' in quoted.read_text()
+    text = assert_ok(case.validate(quoted))
+    assert "thousands separators" in " ".join(text.split())
+    _assert_same_metrics(expected, _metrics(case))
+
+
+def test_ambiguous_or_decimal_comma_is_an_error(case):
+    lines = case.csv_lines()
+    header = lines[0].split(",")
+    fields = lines[10].split(",")
+    fields[header.index(HEATING)] = '"1,234"'
+    lines[10] = ",".join(fields)
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{HEATING}'", "line 11",
+                   "ambiguous")
+    fields[header.index(HEATING)] = '"27,5"'
+    lines[10] = ",".join(fields)
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n", "comma.csv"), "line 11",
+                   "decimal comma")
+
+
+# ---------------------------------------------------------------------------
+# Whole files
+
+
+def test_empty_file(case):
+    _fails_cleanly(case, case.text(""), "empty")
+
+
+def test_header_only_file(case):
+    _fails_cleanly(case, case.text(case.csv_lines()[0] + "\n"), "no data rows")
+
+
+def test_random_bytes(case):
+    data = np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes()
+    _fails_cleanly(case, case.text(data, "random.csv"), "line")
+
+
+def test_gzip_file(case):
+    packed = gzip.compress("\n".join(case.csv_lines()).encode())
+    _fails_cleanly(case, case.text(packed, "measured.csv.gz"), "gzip")
+
+
+def test_missing_and_misspelled_output_columns(case):
+    _fails_cleanly(case, case.write(case.hourly.drop(columns=[AIR])), f"no column '{AIR}'")
+    renamed = case.hourly.rename(columns={HEATING: "heating_power_W"})
+    _fails_cleanly(case, case.write(renamed, "typo.csv"), f"no column '{HEATING}'",
+                   "'heating_power_W' looks like 'heating_power_w'")
+
+
+def test_no_timestamp_column(case):
+    renamed = case.hourly.reset_index().rename(columns={"timestamp": "time"})
+    _fails_cleanly(case, case.text(renamed.to_csv(index=False), "nostamp.csv"),
+                   "no 'timestamp' column", "time")
+
+
+# ---------------------------------------------------------------------------
+# Timestamps
+
+
+def test_bad_timestamp_names_the_line(case):
+    lines = case.csv_lines()
+    lines[5] = "yesterday," + lines[5].split(",", 1)[1]
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 6", "'yesterday'")
+
+
+def test_duplicate_stamp_names_both_lines(case):
+    lines = case.csv_lines()
+    lines.insert(11, lines[10])
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 12", "repeats line 11")
+
+
+def test_unsorted_stamps_are_sorted_and_stated(case):
+    assert_ok(case.validate(case.write(case.hourly, "sorted.csv")))
+    expected = _metrics(case)
+    shuffled = case.hourly.sample(frac=1.0, random_state=1)
+    text = assert_ok(case.validate(case.write(shuffled, "shuffled.csv")))
+    assert "not in order" in " ".join(text.split()) and "rows sorted" in text
+    _assert_same_metrics(expected, _metrics(case))
+
+
+def test_utc_offsets_are_converted_to_the_models_standard_time(case):
+    """San Francisco's weather file says UTC-8: UTC and DST-offset stamps give the same metrics."""
+    assert_ok(case.validate(case.write(case.hourly, "local.csv")))
+    expected = _metrics(case)
+    utc = case.hourly.copy()
+    utc.index = (utc.index + pd.Timedelta(hours=8)).strftime("%Y-%m-%dT%H:%M:%SZ")
+    text = assert_ok(case.validate(case.write(utc, "utc.csv")))
+    assert "converted to the model's local standard time (UTC-08:00" in " ".join(text.split())
+    _assert_same_metrics(expected, _metrics(case))
+    # half the rows as daylight saving time (-07:00: one hour later on the clock)
+    mixed = case.hourly.copy()
+    clock = mixed.index + pd.to_timedelta(np.arange(len(mixed)) % 2, unit="h")
+    mixed.index = [f"{t:%Y-%m-%dT%H:%M:%S}{'-07:00' if i % 2 else '-08:00'}"
+                   for i, t in enumerate(clock)]
+    text = assert_ok(case.validate(case.write(mixed, "dst.csv")))
+    assert "each stamp converted by its own" in " ".join(text.split())
+    _assert_same_metrics(expected, _metrics(case))
+
+
+def test_mixing_stamps_with_and_without_offset_is_an_error(case):
+    lines = case.csv_lines()
+    stamp, rest = lines[7].split(",", 1)
+    lines[7] = stamp.replace(" ", "T") + "+01:00," + rest
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 8", "UTC offset")
+
+
+def test_offset_stamps_without_a_model_time_zone_are_refused(case, tmp_path):
+    config = load_config(case.config)
+    lines = Path(config.model.weather).read_text().splitlines(keepends=True)
+    fields = lines[0].rstrip("\r\n").split(",")
+    fields[8] = ""
+    lines[0] = ",".join(fields) + "\n"
+    epw = tmp_path / "no_zone.epw"
+    epw.write_text("".join(lines))
+    raw = yaml.safe_load(case.config.read_text())
+    raw["model"]["weather"] = str(epw)
+    (tmp_path / "cfg").mkdir()
+    other = write_config(tmp_path / "cfg", raw)
+    utc = case.hourly.copy()
+    utc.index = (utc.index + pd.Timedelta(hours=8)).strftime("%Y-%m-%dT%H:%M:%SZ")
+    before = snapshot(case.run_dir)
+    result = invoke("validate", other, "--measured", case.write(utc, "utc.csv"), "--run-dir",
+                    case.run_dir)
+    assert_clean_error(result, "utc.csv", "time zone is not known")
+    assert_unchanged(before, case.run_dir)
+
+
+def test_rows_outside_the_test_windows(case):
+    early = case.hourly.copy()
+    early.index = early.index - pd.Timedelta(days=30)
+    partly = pd.concat([early.iloc[:10], case.hourly])
+    text = assert_ok(case.validate(case.write(partly, "partly.csv")))
+    assert "10 of 106 rows lie outside every test window and were left out" in " ".join(
+        text.split())
+    other_year = case.hourly.copy()
+    other_year.index = other_year.index - pd.DateOffset(years=4)
+    _fails_cleanly(case, case.write(other_year, "2021.csv"), "no row falls in any test window",
+                   "2021-12-05 01:00:00", "2021-12-09 00:00:00", "H-ST: 2025-12-05 00:00:00")
+
+
+# ---------------------------------------------------------------------------
+# Resolution
+
+
+def _quarter_hours(hourly: pd.DataFrame, spread: float, seed: int = 0) -> pd.DataFrame:
+    """15-min rows whose hour means are exactly ``hourly``; within-hour swings of ± ``spread``."""
+    rng = np.random.default_rng(seed)
+    stamps = (hourly.index.values[:, None]
+              - pd.to_timedelta([45, 30, 15, 0], unit="min").values[None, :]).ravel()
+    frame = pd.DataFrame(index=pd.DatetimeIndex(stamps, name="timestamp"))
+    for column in hourly.columns:
+        swing = rng.normal(0, 1, (len(hourly), 4))
+        swing -= swing.mean(axis=1, keepdims=True)             # hour means unchanged
+        scale = spread * np.maximum(np.abs(hourly[column].to_numpy()), 1.0)[:, None]
+        frame[column] = (hourly[column].to_numpy()[:, None] + swing * scale).ravel()
+    return frame
+
+
+def test_15_min_data_of_an_hourly_truth_give_the_hourly_metrics(case):
+    assert_ok(case.validate(case.write(case.hourly, "hourly.csv")))
+    hourly = _metrics(case)
+    quarter = _quarter_hours(case.hourly, spread=0.2)
+    text = assert_ok(case.validate(case.write(quarter, "quarter.csv")))
+    flat = " ".join(text.split())
+    assert "quarter.csv: 15-min data aggregated to hourly (mean for W, C; hour-ending bins)" in flat
+    aggregated = _metrics(case)
+    _assert_same_metrics(hourly, aggregated, rel=1e-6)
+    record = case.validation()["measured"]
+    assert record["file"].endswith("quarter.csv")
+    assert record["aggregation"][HEATING] == "15-min data averaged to hourly"
+    assert any("15-min data aggregated to hourly" in n for n in record["notes"])
+    assert all("15-min data averaged to hourly" in t["notes"] for t in case.validation()["tests"])
+    csv = pd.read_csv(case.run_dir / "validation.csv")
+    assert csv["notes"].str.contains("15-min data averaged to hourly").all()
+    # the old reading (the :00 rows only) gives different metrics: the test can fail
+    on_the_hour = quarter[quarter.index.minute == 0]
+    assert_ok(case.validate(case.write(on_the_hour, "on_the_hour.csv")))
+    picked = _metrics(case)
+    key = ("H-ST", HEATING)
+    assert abs(picked[key]["cv_rmse"] - hourly[key]["cv_rmse"]) > 0.01
+
+
+def test_incomplete_hours_are_left_out_and_stated(case):
+    quarter = _quarter_hours(case.hourly, spread=0.1)
+    in_warmup = pd.Timestamp("2025-12-05 05:15")        # H-ST's warm-up day: not evaluated
+    text = assert_ok(case.validate(case.write(quarter.drop(in_warmup), "gap.csv")))
+    assert "left out, not averaged from fewer values" in " ".join(text.split())
+    assert "2025-12-05 06:00:00" in text
+    evaluated = pd.Timestamp("2025-12-06 10:30")
+    text = _fails_cleanly(case, case.write(quarter.drop(evaluated), "gap2.csv"),
+                          "lacks 1 of the 24 evaluated hours", "2025-12-06 11:00:00")
+    assert "not averaged from fewer values" in " ".join(text.split())
+
+
+@pytest.mark.parametrize("minutes,needle", [(7, "does not divide"), (120, "coarser")])
+def test_steps_that_cannot_be_aggregated(case, minutes, needle):
+    stamps = pd.date_range("2025-12-05 02:00", "2025-12-09 00:00",
+                           freq=f"{minutes}min", name="timestamp")
+    frame = pd.DataFrame({c: 1.0 for c in case.hourly.columns}, index=stamps)
+    _fails_cleanly(case, case.write(frame, f"step{minutes}.csv"), needle, f"{minutes}-min"
+                   if minutes < 60 else "2-hour")
+
+
+def test_irregular_steps(case):
+    quarter = _quarter_hours(case.hourly, spread=0.1)
+    quarter = quarter.rename(index={pd.Timestamp("2025-12-05 10:15"):
+                                    pd.Timestamp("2025-12-05 10:22")})
+    _fails_cleanly(case, case.write(quarter, "irregular.csv"), "irregular time steps",
+                   "15-min")
+
+
+def test_energy_is_summed_power_and_temperature_averaged(tmp_path):
+    """Known answer: 250 Wh per quarter hour is 1000 Wh per hour; 1000 W stays 1000 W."""
+    raw = short_raw()
+    raw["outputs"]["heating_energy_wh"] = {"meter": "Heating:EnergyTransfer", "unit": "Wh"}
+    raw["outputs"]["air_fast_c"] = {"variable": "Zone Mean Air Temperature", "key": "Cell",
+                                    "unit": "C", "frequency": "timestep"}
+    raw["model"]["timesteps_per_hour"] = 4
+    config = load_config(write_config(tmp_path, raw))
+    stamps = pd.date_range("2025-12-05 00:05", "2025-12-06 00:00", freq="5min", name="timestamp")
+    minute = stamps.minute.to_numpy()
+    frame = pd.DataFrame({"heating_energy_wh": 250.0 / 3, HEATING: 1000.0 + (minute % 10 - 2.5),
+                          AIR: 20.0, "air_fast_c": 20.0 + (minute % 15) / 5}, index=stamps)
+    path = tmp_path / "energy.csv"
+    frame.to_csv(path)
+    data = read_measured(path, config)
+    hourly = data.frame["heating_energy_wh"].dropna()
+    assert len(hourly) == 24 and np.allclose(hourly, 1000.0)
+    assert hourly.index[0] == pd.Timestamp("2025-12-05 01:00")
+    assert np.allclose(data.frame[HEATING].dropna(), 1000.0)
+    fast = data.frame["air_fast_c"].dropna()                 # kept at the 15-min time step
+    assert fast.index[1] - fast.index[0] == pd.Timedelta(minutes=15)
+    assert np.allclose(fast, 20.0 + (5 + 10 + 0) / 3 / 5)      # minutes 5, 10, 15 -> 1, 2, 0
+    assert data.aggregation["heating_energy_wh"] == "5-min data summed to hourly"
+    note = " ".join(data.notes)
+    assert "sum for Wh" in note and "mean for W" in note and "to 15-min" in note
+
+
+# ---------------------------------------------------------------------------
+# Plausibility
+
+
+def test_temperature_x1000_is_an_error_unless_allowed(case):
+    scaled = case.hourly.copy()
+    scaled[AIR] = scaled[AIR] * 1000
+    path = case.write(scaled, "x1000.csv")
+    _fails_cleanly(case, path, f"column '{AIR}' [C], line 2", "[-60, 100]", "×1000",
+                   "--allow-implausible")
+    text = assert_ok(case.validate(path, "--allow-implausible"))
+    assert "accepted: --allow-implausible" in " ".join(text.split())
+
+
+def test_power_x1000_against_the_ensemble(case):
+    scaled = case.hourly.copy()
+    scaled[HEATING] = scaled[HEATING] * 1000
+    _fails_cleanly(case, case.write(scaled, "kw_as_w.csv"), f"column '{HEATING}' [W]",
+                   "20 × the largest simulated magnitude", "×1000")
+
+
+def test_kelvin_in_a_celsius_column(case):
+    kelvin = case.hourly.copy()
+    kelvin[AIR] = kelvin[AIR] + 273.15
+    _fails_cleanly(case, case.write(kelvin, "kelvin.csv"), "kelvin in a °C column?")
+
+
+def test_config_range_makes_heating_non_negative(case, tmp_path):
+    raw = yaml.safe_load(case.config.read_text())
+    raw["outputs"][HEATING]["plausible"] = [0, None]
+    (tmp_path / "cfg").mkdir()
+    config = write_config(tmp_path / "cfg", raw)
+    negative = case.hourly.copy()
+    negative.iloc[20, negative.columns.get_loc(HEATING)] = -50.0
+    before = snapshot(case.run_dir)
+    result = invoke("validate", config, "--measured", case.write(negative, "negative.csv"),
+                    "--run-dir", case.run_dir)
+    assert_clean_error(result, "negative.csv", f"column '{HEATING}'", "line 22",
+                       f"outputs.{HEATING}.plausible")
+    assert_unchanged(before, case.run_dir)
+
+
+# ---------------------------------------------------------------------------
+# The other commands that take --measured
+
+
+def test_diagnose_refuses_bad_data_before_writing(case):
+    lines = case.csv_lines()
+    lines[3] = lines[3].rsplit(",", 1)[0] + ",inf"
+    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{AIR}'", "line 4",
+                   command="diagnose", extra=("--no-progress",))
+    scaled = case.hourly.copy()
+    scaled[AIR] = scaled[AIR] * 1000
+    _fails_cleanly(case, case.write(scaled, "x1000.csv"), "×1000", command="diagnose",
+                   extra=("--no-progress",))
+
+
+def test_calibrate_refuses_bad_data_before_writing(case):
+    duplicated = pd.concat([case.hourly, case.hourly.iloc[[5]]])
+    _fails_cleanly(case, case.write(duplicated, "dupes.csv"), "repeats line",
+                   command="calibrate", extra=("--no-progress",))
+    scaled = case.hourly.copy()
+    scaled[AIR] = scaled[AIR] * 1000
+    _fails_cleanly(case, case.write(scaled, "x1000.csv"), f"column '{AIR}'", "×1000",
+                   command="calibrate", extra=("--no-progress",))
+
+
+def test_calibrate_bounds_power_by_its_design_when_the_run_has_no_results(case, tmp_path):
+    """No results.parquet: the calibration design's ensemble sets the ceiling."""
+    raw = yaml.safe_load(case.config.read_text())
+    for parameter in raw["parameters"]:
+        if parameter["name"] != "glazing_dirt_correction":
+            distribution = parameter["distribution"]
+            value = {"uniform": lambda d: (d["lower"] + d["upper"]) / 2,
+                     "normal": lambda d: d["mean"], "sampler": lambda d: 0}[distribution["type"]]
+            parameter["distribution"] = {"type": "constant", "value": float(value(distribution))}
+    raw["calibration"] = {"outputs": [HEATING], "resolution": "hourly", "holdout_days": 1,
+                          "design": {"runs": 10, "seed": 1}}
+    (tmp_path / "cfg").mkdir()
+    config = write_config(tmp_path / "cfg", raw)
+    run_dir = tmp_path / "cfg" / "run"
+    scaled = case.hourly.copy()
+    scaled[HEATING] = scaled[HEATING] * 1000
+    path = case.write(scaled, "kw_as_w.csv")
+    result = invoke("calibrate", config, "--measured", path, "--method", "deterministic",
+                    "--no-progress")
+    assert_clean_error(result, "kw_as_w.csv", f"column '{HEATING}'", "×1000",
+                       "20 × the largest simulated magnitude")
+    assert not (run_dir / "results.parquet").exists()
+    assert not (run_dir / "calibration" / "calibration.json").exists()
+
+
+def test_run_and_sensitivity_refuse_bad_data(case):
+    text = _fails_cleanly(case, case.text(b"\x00\x01binary", "blob.csv"), "binary",
+                          command="run", extra=("--no-progress",))
+    assert "ran" not in text
+    _fails_cleanly(case, case.text("timestamp,heating_power_w\n", "header.csv"),
+                   "no data rows", command="sensitivity", extra=("--no-progress",))
+    assert not (case.run_dir / "morris").exists()
+
+
+def test_notes_are_printed_by_every_command(case):
+    quarter = _quarter_hours(case.hourly, spread=0.1)
+    path = case.write(quarter, "quarter.csv")
+    result = invoke("run", case.config, "--measured", path, "--run-dir", case.run_dir,
+                    "--no-progress")
+    assert "15-min data aggregated to hourly" in " ".join(assert_ok(result).split())
+    assert "Traceback" not in all_text(result)
