@@ -403,37 +403,43 @@ def test_run_and_sensitivity_write_nothing_outside_the_run_dir(tmp_path):
 
 # 9. Every instance fails: the failure summary, never a traceback -----------------------------
 
-def _failing(raw: dict) -> dict:
-    """Every instance fails on the surrogate: a conductivity 1e200 times too high."""
-    raw = copy.deepcopy(raw)
-    raw["parameters"] = [p for p in raw["parameters"] if p["name"]
-                         != "south_wall_insulation_conductivity"] + [
-        {"name": "south_wall_insulation_conductivity", "mode": "relative",
-         "distribution": {"type": "uniform", "lower": 1e200, "upper": 1e201},
-         "targets": [{"object": "Material", "name": "SouthWallInsulation",
-                      "field": "Conductivity"}]}]
-    return raw
+#: Every instance fails on the surrogate: a conductivity 1e200 times too high gives
+#: non-finite temperatures.
+FAILING_PARAMETER = {
+    "name": "south_wall_insulation_conductivity", "mode": "relative",
+    "distribution": {"type": "uniform", "lower": 1e200, "upper": 1e201},
+    "targets": [{"object": "Material", "name": "SouthWallInsulation", "field": "Conductivity"}]}
 
 
 @pytest.fixture(scope="module")
 def all_failing(tmp_path_factory) -> tuple[Path, Path, Path]:
-    """A config every instance of which fails, measured data of a healthy twin, a truth file."""
+    """A config every instance of which fails, measured data of a healthy twin, a truth file.
+
+    Twelve days of the shipped calibration example (enough for calibrate and diagnose to
+    reach their runs), small designs.
+    """
     folder = tmp_path_factory.mktemp("all_failing")
-    raw = surrogate_raw()
-    raw["design"].update(levels=4, trajectories=2)
-    raw["calibration"] = {"outputs": ["heating_power_w"], "resolution": "daily",
-                          "holdout_days": 1, "design": {"runs": 10, "seed": 1},
-                          "emulator": {"points": 50}, "bayes": {"chains": 1, "warmup": 10,
-                                                                "samples": 10},
-                          "deterministic": {"starts": 1}, "posterior_runs": 2}
+    raw = {"extends": str(ROOT / "configs" / "calibration.yaml"),
+           "model": {"periods": [{"name": "cal", "start": "11-08", "end": "11-19"}],
+                     "tests": [{"name": "H", "period": "cal", "start": "11-08", "days": 12,
+                                "warmup_days": 2, "mode": "heating", "setpoint_c": 30.0,
+                                "outputs": ["heating_power_w", "zone_air_temperature_c"]}]},
+           "design": {"method": "lhs", "samples": 4, "seed": 1, "levels": 4, "trajectories": 2},
+           "calibration": {"outputs": ["heating_power_w"], "resolution": "daily",
+                           "holdout_days": 3, "design": {"runs": 20, "seed": 1},
+                           "emulator": {"points": 100}, "bayes": {"chains": 1, "warmup": 20,
+                                                                  "samples": 20},
+                           "deterministic": {"starts": 1}, "posterior_runs": 4,
+                           "scenarios": []}}
     truth = folder / "truth.yaml"
     truth.write_text("seed: 1\nvalues: {}\n")
-    (folder / "healthy").mkdir()
-    healthy = write_config(folder / "healthy", raw)
+    healthy = write_config(folder, raw, "healthy.yaml")
     assert_ok(invoke("synth", healthy, "--truth", truth))
-    measured = folder / "healthy" / "run" / "truth" / "measured.csv"
+    measured = folder / "measured.csv"
+    measured.write_bytes((folder / "run" / "truth" / "measured.csv").read_bytes())
     (folder / "failing").mkdir()
-    return write_config(folder / "failing", _failing(raw)), measured, truth
+    failing = write_config(folder / "failing", {**raw, "parameters": [FAILING_PARAMETER]})
+    return failing, measured, truth
 
 
 @pytest.mark.parametrize("command", ["run", "synth", "sensitivity", "calibrate", "diagnose",
