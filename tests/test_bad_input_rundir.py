@@ -522,6 +522,8 @@ def test_sigkill_leaves_no_orphan_and_resumes_to_the_same_results(tmp_path):
         if not survivors:
             break
         time.sleep(0.1)
+    for orphan in survivors:                         # do not leave them to other tests
+        os.kill(orphan, signal.SIGKILL)
     assert not survivors, f"orphaned processes still run: {sorted(survivors)}"
     frozen = _mtimes(run)
     time.sleep(3)
