@@ -334,6 +334,21 @@ def test_a_read_only_run_dir_is_refused(finished, tmp_path):
     assert_unchanged(before, tmp_path / "run")
 
 
+def test_a_run_dir_without_write_permission_is_refused(finished, tmp_path, monkeypatch):
+    """As root (CI containers) permissions are not enforced: the check is what is tested."""
+    config = copy_run(finished, tmp_path)
+    before = snapshot(tmp_path / "run")
+    real = os.access
+    monkeypatch.setattr(rundir.os, "access", lambda path, mode, **kw: False
+                        if Path(path) == tmp_path / "run" else real(path, mode, **kw))
+    for command in ("run", "sample", "validate"):
+        args = {"run": ["--no-progress"], "sample": ["--force"],
+                "validate": ["--measured", tmp_path / "run" / "truth" / "measured.csv"]}[command]
+        assert_clean_error(invoke(command, config, *args), "execution.run_dir",
+                           str(tmp_path / "run"), "is not writable; expected a folder")
+    assert snapshot(tmp_path / "run") == before
+
+
 # 8. Names and paths ---------------------------------------------------------------------------
 
 HOSTILE = ["../x", "a/b", "/abs", "..", ".", "-x", "a\\b", "a\x00b", "a\nb", "x\n", ""]
