@@ -23,6 +23,7 @@ from scipy import stats
 
 from bpsflow.config import Boundary, Config, period_dates
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_npz, write_text_atomic
 from bpsflow.tables import read_table
 from bpsflow.yearhours import NON_LEAP_ROWS, day_rows
 
@@ -132,15 +133,22 @@ def ensure_sequences(config: Config) -> Path | None:
 
 def write_sequences(sequences: BoundarySequences, run_dir: Path) -> Path:
     path = run_dir / SEQUENCES_FILE
-    np.savez_compressed(path, surfaces=np.array(sequences.surfaces), hours=sequences.hours,
-                        values=sequences.values)
+    write_npz(path, surfaces=np.array(sequences.surfaces), hours=sequences.hours,
+              values=sequences.values)
     return path
 
 
-@lru_cache(maxsize=2)
 def read_sequences(path: Path) -> BoundarySequences:
+    """The boundary sequences in ``path`` (cached while the file is unchanged)."""
     if not path.is_file():
         raise BpsflowError(f"boundary sequences not found: {path}; run 'bpsflow sample' first")
+    stat = path.stat()
+    # keyed by the file's identity too: a new design rewrites the file under the same name
+    return _read_sequences(path, stat.st_ino, stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=2)
+def _read_sequences(path: Path, inode: int, mtime_ns: int, size: int) -> BoundarySequences:
     with np.load(path) as data:
         return BoundarySequences(surfaces=tuple(str(s) for s in data["surfaces"]),
                                  hours=data["hours"], values=data["values"])
@@ -172,5 +180,4 @@ def write_boundary_file(boundary: Boundary, sequences: BoundarySequences | None,
                 sequences.sequence(surface, index)
         for k, hour in enumerate(sequences.hours.tolist()):
             lines[hour] = ",".join(v if isinstance(v, str) else f"{v:.4f}" for v in values[k])
-    path.write_text(header + "\n" + "\n".join(lines) + "\n")
-    return path
+    return write_text_atomic(path, header + "\n" + "\n".join(lines) + "\n")

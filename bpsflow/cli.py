@@ -6,9 +6,11 @@ paragraph naming the file and key, and exit with status 2; no traceback.
 
 from __future__ import annotations
 
+import contextvars
 import functools
 import os
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 import typer
@@ -31,7 +33,12 @@ def _friendly(func):
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         try:
-            return func(*args, **kwargs)
+            with ExitStack() as stack:
+                token = _held.set(stack)
+                try:
+                    return func(*args, **kwargs)
+                finally:
+                    _held.reset(token)
         except (typer.Exit, typer.Abort, typer.BadParameter):
             raise
         except BpsflowError as exc:
@@ -60,18 +67,48 @@ def _friendly(func):
     return wrapper
 
 
-def _load(config: Path, run_dir: Path | None):
+def _load(config: Path, run_dir: Path | None, **sections: dict):
+    """The validated config; ``sections`` (e.g. ``design={"samples": 5}``) are command-line
+    overrides merged over the file's sections before validation, so they meet the schema's
+    bounds like any value in the file."""
     from bpsflow.config import load_config
 
-    overrides = {"execution": {"run_dir": str(run_dir.resolve())}} if run_dir else None
-    return load_config(config, overrides)
+    overrides: dict[str, dict] = {name: values for name, values in sections.items() if values}
+    if run_dir:
+        overrides.setdefault("execution", {})["run_dir"] = str(run_dir.resolve())
+    return load_config(config, overrides or None)
+
+
+#: The resources a command holds until it ends (its run directory's lock), released by
+#: :func:`_friendly` however the command ends.
+_held: contextvars.ContextVar[ExitStack | None] = contextvars.ContextVar("held", default=None)
+
+
+def _lock(cfg) -> Path:
+    """Create the run directory if needed and lock it until the command ends.
+
+    Every command that writes into a run directory calls this before it
+    writes anything: a second command on the same directory refuses, naming
+    this one's process and command line; the ensemble loop inside takes the
+    same lock again (nested). Returns the resolved run directory.
+    """
+    from bpsflow.simulation.rundir import RunLock, prepare_run_dir
+
+    rd = prepare_run_dir(cfg.run_dir.resolve())
+    stack = _held.get()
+    if stack is None:  # called outside a command (a library caller): nothing to release into
+        raise RuntimeError("_lock is for CLI commands wrapped by _friendly")
+    stack.enter_context(RunLock(rd))
+    return rd
 
 
 def _write_resolved(cfg) -> None:
-    run_dir = cfg.run_dir.resolve()
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.resolved.yaml").write_text(
-        yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
+    from bpsflow.files import write_text_atomic
+    from bpsflow.simulation.rundir import prepare_run_dir
+
+    run_dir = prepare_run_dir(cfg.run_dir.resolve())
+    write_text_atomic(run_dir / "config.resolved.yaml",
+                      yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
 
 
 RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.")
@@ -100,48 +137,80 @@ def _test_outputs(cfg) -> list[str]:
     return list(dict.fromkeys(o for t in cfg.model.tests for o in t.outputs))
 
 
+#: What a run directory holds for one design: moved aside together by ``sample --force``.
+_DESIGN_FILES = ("instances", "manifest.parquet", "results.parquet", "samples.parquet",
+                 "design_unit.parquet", "boundary_sequences.npz", "design.json",
+                 "config.resolved.yaml", "figures", "validation.json", "validation.csv")
+#: Files that mean instances of the design have run.
+_RUN_FILES = ("instances", "manifest.parquet", "results.parquet")
+
+
 @app.command()
 @_friendly
 def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
            samples: int | None = typer.Option(None, help="Override design.samples."),
            seed: int | None = typer.Option(None, help="Override design.seed."),
-           force: bool = typer.Option(False, help="Discard instances already run in the run "
-                                                  "directory and draw a new design.")) -> None:
+           force: bool = typer.Option(False, help="Draw a new design in a run directory that "
+                                                  "holds results of another one; the old "
+                                                  "results are moved to RUN_DIR/previous/.")) -> None:
     """Draw the design (LHS or Morris) and write samples.parquet."""
-    cfg = _load(config, run_dir)
-    rd = cfg.run_dir.resolve()
-    if (rd / "instances").is_dir():
-        if not force:
-            raise BpsflowError(f"{rd} already holds run instances of an earlier design; a new "
-                               f"design would mix with them. Use another --run-dir, or --force "
-                               f"to discard them")
-        import shutil
+    from bpsflow.design_record import design_changes
+    from bpsflow.simulation.rundir import move_aside
 
-        shutil.rmtree(rd / "instances")
-        for name in ("manifest.parquet", "results.parquet"):
-            (rd / name).unlink(missing_ok=True)
-    if samples is not None:
-        cfg.design.samples = samples
-    if seed is not None:
-        cfg.design.seed = seed
-    path = _sample(cfg)
+    overrides = {key: value for key, value in (("samples", samples), ("seed", seed))
+                 if value is not None}
+    cfg = _load(config, run_dir, design=overrides)
+    drawn = _draw(cfg)  # every option is checked and the design drawn before anything moves
+    rd = _lock(cfg)
+    changes = design_changes(cfg, rd)
+    ran = [name for name in _RUN_FILES if (rd / name).exists()]
+    if changes == [] and not force:
+        console.print(f"the design in {rd} is the config's already: kept samples.parquet"
+                      + (" and the instances run from it" if ran else ""))
+        return
+    if ran and not force:
+        what = "; ".join(changes[:3]) if changes else "a design with no record"
+        raise BpsflowError(f"{rd} already holds results of another design ({what}); a new "
+                           f"design would mix with them. Use another --run-dir, or --force "
+                           f"to move them to {rd / 'previous'}/<timestamp> and draw the "
+                           f"new design")
+    moved = move_aside(rd, _DESIGN_FILES) if ran else None
+    path = _write_drawn(cfg, drawn)
     console.print(f"wrote {path} ({cfg.design.method}, {len(cfg.parameters)} parameters)")
+    if moved is not None:
+        console.print(f"the previous design and its results are in {moved}")
+
+
+def _draw(cfg):
+    """The design and the boundary sequences (or None) of ``cfg``, in memory."""
+    from bpsflow.boundary import draw_sequences, period_hours
+    from bpsflow.sampling import sample as draw
+
+    sequences = (draw_sequences(cfg.model.boundary, period_hours(cfg))
+                 if cfg.model.boundary is not None else None)
+    return draw(cfg), sequences
+
+
+def _write_drawn(cfg, drawn) -> Path:
+    """Write a drawn design, its boundary sequences, its record and the resolved config."""
+    from bpsflow.boundary import SEQUENCES_FILE, write_sequences
+    from bpsflow.design_record import write_design_record
+    from bpsflow.sampling import write_design
+
+    design, sequences = drawn
+    run_dir = cfg.run_dir.resolve()
+    path = write_design(design, run_dir)
+    if sequences is not None:
+        write_sequences(sequences, run_dir)
+    else:
+        (run_dir / SEQUENCES_FILE).unlink(missing_ok=True)
+    write_design_record(cfg, run_dir)
+    _write_resolved(cfg)
+    return path
 
 
 def _sample(cfg) -> Path:
-    from bpsflow.boundary import SEQUENCES_FILE, draw_sequences, period_hours, write_sequences
-    from bpsflow.sampling import sample as draw
-    from bpsflow.sampling import write_design
-
-    design = draw(cfg)
-    run_dir = cfg.run_dir.resolve()
-    path = write_design(design, run_dir)
-    if cfg.model.boundary is not None:
-        # A new design gets new sequences: old instances must not mix with new ones.
-        (run_dir / SEQUENCES_FILE).unlink(missing_ok=True)
-        write_sequences(draw_sequences(cfg.model.boundary, period_hours(cfg)), run_dir)
-    _write_resolved(cfg)
-    return path
+    return _write_drawn(cfg, _draw(cfg))
 
 
 @app.command()
@@ -179,13 +248,16 @@ def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
                                                  help="Instance(s) to write."),
               out: Path | None = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
     """Write instance inputs (IDF per period, weather, boundary data) without running them."""
+    from bpsflow.design_record import require_same_design
     from bpsflow.sampling import read_samples
     from bpsflow.simulation.backend import choose_backend
 
     cfg = _load(config, run_dir)
-    samples = read_samples(cfg.run_dir.resolve())
+    rd = _lock(cfg)
+    samples = read_samples(rd)
+    require_same_design(cfg, rd, "instances")
     chosen = choose_backend(cfg, err_console.print)
-    out = out or cfg.run_dir.resolve() / "inspect"
+    out = out or rd / "inspect"
     for i in instance:
         if i not in samples.index:
             raise BpsflowError(f"--instance {i}: not in samples.parquet (0..{len(samples) - 1})")
@@ -204,6 +276,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         allow_implausible: bool = AllowImplausibleOption,
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Run every instance (sampling first if needed); resume skips finished instances."""
+    from bpsflow.design_record import require_same_design
     from bpsflow.measured import plausibility_reference
     from bpsflow.plots import band_summary, plot_bands
     from bpsflow.sampling import SAMPLES_FILE, read_samples
@@ -213,14 +286,15 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
 
     cfg = _load(config, run_dir)
     _set_backend(cfg, backend)
-    rd = cfg.run_dir.resolve()
+    chosen = choose_backend(cfg, err_console.print)
+    rd = _lock(cfg)
     observed = _read_measured(measured, cfg, reference=plausibility_reference(rd),
                               allow_implausible=allow_implausible).frame if measured else None
-    chosen = choose_backend(cfg, err_console.print)
     if not (rd / SAMPLES_FILE).is_file():
         console.print(f"no samples in {rd}: sampling first")
         _sample(cfg)
     else:
+        require_same_design(cfg, rd, "run")
         _write_resolved(cfg)
     summary = run_ensemble(cfg, read_samples(rd), chosen, jobs=jobs, retry_failed=retry_failed,
                            keep_inputs=keep_inputs, show_progress=not no_progress)
@@ -266,7 +340,8 @@ def synth(config: Path = ConfigArg,
     if backend is not None:
         cfg.model.backend = backend
     spec = load_truth(truth, cfg)
-    out = out or cfg.run_dir.resolve() / "truth"
+    rd = _lock(cfg)
+    out = out or rd / "truth"
     path = synthesize(cfg, spec, out.resolve(), detailed=detailed)
     console.print(f"wrote {path}")
     if detailed:
@@ -286,6 +361,7 @@ def validate(config: Path = ConfigArg,
              allow_implausible: bool = AllowImplausibleOption,
              run_dir: Path | None = RunDirOption) -> None:
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
+    from bpsflow.design_record import require_same_design
     from bpsflow.plots import plot_bands
     from bpsflow.simulation.rundir import read_results
     from bpsflow.validation import note_measured, write_outputs
@@ -296,7 +372,8 @@ def validate(config: Path = ConfigArg,
         if not 0 < q < 1:
             raise BpsflowError(f"--q: expected a quantile between 0 and 1, got {q}")
         cfg.validation.q = q
-    rd = cfg.run_dir.resolve()
+    rd = _lock(cfg)
+    require_same_design(cfg, rd, "validate")
     # Everything is read and checked before anything is written: a bad file leaves the
     # previous validation.csv/.json as they were.
     results = read_results(rd)
@@ -397,6 +474,7 @@ def sensitivity(
                                   allow_implausible=allow_implausible).frame
         morris.check_measured(mcfg, observed, measured)
     chosen = choose_backend(mcfg, announce=err_console.print)
+    _lock(cfg)
     samples = morris.prepare_morris(mcfg, chosen.name, announce=err_console.print)
     md = mcfg.run_dir.resolve()
     varied = morris.varied_parameters(mcfg)
@@ -466,7 +544,8 @@ def refine(config: Path = ConfigArg,
     from bpsflow.refine import refine as run_refine
 
     cfg = _load(config, run_dir)
-    out = (out or cfg.run_dir.resolve() / "refine").resolve()
+    rd = _lock(cfg)
+    out = (out or rd / "refine").resolve()
     refinement = run_refine(cfg, detailed)
     paths = write_refinement(refinement, out, refined_config)
     table = Table(title=f"{cfg.name}: refined inputs, 90 % intervals (seed §3.5)")
@@ -531,6 +610,7 @@ def calibrate(config: Path = ConfigArg,
                                outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
                                resolution=resolution, chains=chains, warmup=warmup,
                                samples=samples, runs=runs)
+    _lock(cfg)
     outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
                               out=out.resolve() if out else None, backend=backend, jobs=jobs,
                               truth_path=truth, settings=settings, show_progress=not no_progress,
@@ -559,6 +639,7 @@ def diagnose(config: Path = ConfigArg,
     from bpsflow.diagnosis.command import run_diagnose
 
     cfg = _load(config, run_dir)
+    _lock(cfg)
     run_diagnose(cfg, measured, out.resolve() if out else None, backend=backend, jobs=jobs,
                  show_progress=not no_progress, console=console,
                  allow_implausible=allow_implausible)

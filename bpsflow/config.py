@@ -45,8 +45,9 @@ from bpsflow.diagnosis.settings import DiagnosisSettings
 from bpsflow.distributions import Constant, Distribution, Empirical, Sampler
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_user_text
+from bpsflow.names import NAME_PATTERN, SafeName
+from bpsflow.names import RULE as NAME_RULE
 
-_NAME = r"^[A-Za-z_][A-Za-z0-9_.\-]*$"
 _MONTH_DAY = re.compile(r"^(\d{2})-(\d{2})$")
 
 #: Weather-file quantities a parameter may perturb (sensor errors, seed Table 3.2).
@@ -105,7 +106,7 @@ Target = Annotated[
 class Parameter(_Strict):
     """One uncertain input."""
 
-    name: str = Field(pattern=_NAME)
+    name: SafeName
     distribution: Distribution
     mode: Literal["relative", "absolute", "additive"] = "absolute"
     targets: list[Target] = Field(min_length=1)
@@ -133,7 +134,7 @@ class Parameter(_Strict):
 class Period(_Strict):
     """A run period: one EnergyPlus run per instance covers all tests in it."""
 
-    name: str = Field(pattern=_NAME)
+    name: SafeName
     start: str
     end: str
 
@@ -152,7 +153,7 @@ class Test(_Strict):
     day). The first ``warmup_days`` are simulated but not evaluated.
     """
 
-    name: str = Field(pattern=_NAME)
+    name: SafeName
     period: str
     start: str
     days: int = Field(default=6, ge=1)
@@ -324,9 +325,8 @@ class Config(_Strict):
     @classmethod
     def _output_names(cls, outputs: dict[str, OutputVariable]) -> dict[str, OutputVariable]:
         for name in outputs:
-            if not re.match(_NAME, name):
-                raise ValueError(f"output name '{name}': expected letters, digits, '_', '-' or "
-                                 f"'.', starting with a letter or '_' (it names files)")
+            if not NAME_PATTERN.fullmatch(name):
+                raise ValueError(f"output name {name!r}: {NAME_RULE}")
         return outputs
 
     @model_validator(mode="after")
@@ -437,7 +437,7 @@ def _format_location(loc: tuple[Any, ...], raw: Any) -> str:
     for item in loc:
         if isinstance(item, int):
             node = node[item] if isinstance(node, list) and item < len(node) else None
-            name = f" ({node['name']})" if isinstance(node, dict) and "name" in node else ""
+            name = f" ({_shown(node['name'])})" if isinstance(node, dict) and "name" in node else ""
             parts.append(f"[{item}]{name}")
         elif isinstance(node, dict) and item not in node and item in _UNION_TAGS:
             continue  # pydantic names the union member it tried; the user never wrote it
@@ -445,6 +445,12 @@ def _format_location(loc: tuple[Any, ...], raw: Any) -> str:
             parts.append(("." if parts else "") + str(item))
             node = node.get(item) if isinstance(node, dict) else None
     return "".join(parts) or "(top level)"
+
+
+def _shown(name: object) -> str:
+    """A name as a message shows it: as written, or its ``repr`` when it holds control characters."""
+    text = str(name)
+    return text if text.isprintable() else repr(text)
 
 
 def _resolve(path: Path, base: Path) -> Path:

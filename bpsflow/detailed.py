@@ -81,7 +81,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, OutputVariable, Test, period_dates
 from bpsflow.errors import BpsflowError
-from bpsflow.files import write_json
+from bpsflow.files import write_csv, write_json
 from bpsflow.simulation.idf import inside_convection_curve, polygon_area
 from bpsflow.tables import read_table
 
@@ -1138,8 +1138,8 @@ def write_detailed(out_dir: Path, readings: pd.DataFrame, calibration: pd.DataFr
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"detailed": out_dir / DETAILED_FILE, "calibration": out_dir / CALIBRATION_FILE,
              "metadata": out_dir / METADATA_FILE}
-    readings.to_csv(paths["detailed"], index_label="timestamp", float_format="%.7g")
-    calibration.to_csv(paths["calibration"], index=False, float_format="%.7g")
+    write_csv(readings, paths["detailed"], index_label="timestamp", float_format="%.7g")
+    write_csv(calibration, paths["calibration"], index=False, float_format="%.7g")
     write_json(paths["metadata"], metadata)
     return paths
 

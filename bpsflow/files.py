@@ -10,6 +10,10 @@ here, so that
   or a parallel reader never sees a truncated ``calibration.json``. (No
   ``fsync``: this guards against interrupted processes, not power loss, and
   costs nothing per file);
+* nothing lands outside the folder it belongs to: a file name built from a
+  config name (a test, an output, a measured column) is resolved with
+  :func:`inside`, which refuses a name that would leave its root folder
+  (``../x``, an absolute path) whatever the schema let through;
 * JSON means the same thing everywhere: numpy scalars and arrays, pandas
   timestamps and paths are converted the same way in every module, and
   non-finite floats (NaN, ±inf) are written as ``null``, because JSON has no
@@ -31,8 +35,8 @@ from typing import IO, Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["jsonable", "read_user_text", "write_csv", "write_json", "write_parquet",
-           "write_text_atomic"]
+__all__ = ["inside", "jsonable", "read_user_text", "save_figure", "write_csv", "write_json",
+           "write_npz", "write_parquet", "write_text_atomic"]
 
 
 def read_user_text(path: str | os.PathLike, what: str) -> str:
@@ -204,6 +208,84 @@ def write_csv(frame: pd.DataFrame, path: str | os.PathLike, **kwargs: Any) -> Pa
         ``path``.
     """
     return _atomic(path, lambda handle: frame.to_csv(handle, **kwargs))
+
+
+def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
+    """Write ``arrays`` to a compressed ``.npz`` file atomically.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to (re)place; its folder must exist.
+    **arrays
+        Passed to :func:`numpy.savez_compressed`.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    return _atomic(path, lambda handle: np.savez_compressed(handle, **arrays))
+
+
+def save_figure(figure: Any, path: str | os.PathLike, **kwargs: Any) -> Path:
+    """Save a matplotlib figure atomically, in the format its suffix names.
+
+    Parameters
+    ----------
+    figure : matplotlib.figure.Figure
+    path : str or PathLike
+        The image to (re)place (``.png``, ``.pdf``, ``.svg`` ...); its folder must exist.
+    **kwargs
+        Passed to :meth:`matplotlib.figure.Figure.savefig` (``dpi`` ...).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    image_format = path.suffix.lstrip(".") or "png"
+    return _atomic(path, lambda handle: figure.savefig(handle, format=image_format, **kwargs))
+
+
+def inside(root: str | os.PathLike, *parts: str | os.PathLike) -> Path:
+    """``root / parts...``, resolved, refused when it would leave ``root``.
+
+    File names built from user-given names (tests, outputs, scenarios,
+    measured columns) go through here, so that no name (``../x``, ``/abs``, a
+    symbolic link out) makes bpsflow write outside its run or output folder.
+
+    Parameters
+    ----------
+    root : str or PathLike
+        The folder every file must stay in.
+    *parts : str or PathLike
+        Path components below ``root`` (e.g. ``"figures", f"band_{name}.png"``).
+
+    Returns
+    -------
+    Path
+        The resolved path.
+
+    Raises
+    ------
+    BpsflowError
+        The path would lie outside ``root``, or a part holds a NUL or a line break.
+    """
+    from bpsflow.errors import BpsflowError
+
+    base = Path(root).resolve()
+    text = [str(part) for part in parts]
+    if any(character in part for part in text for character in "\0\n\r"):
+        raise BpsflowError(f"refusing to write {text!r} under {base}: a file name may not hold "
+                           f"a NUL or line-break character")
+    target = base.joinpath(*text).resolve()
+    if target != base and base not in target.parents:
+        raise BpsflowError(f"refusing to write {target}: it lies outside {base} (a name in the "
+                           f"config or data holds a path separator or '..'; names may hold "
+                           f"letters, digits, '_', '-' and '.')")
+    return target
 
 
 def _atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> Path:

@@ -10,6 +10,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from bpsflow.config import Config, test_dates
+from bpsflow.files import inside, save_figure
 
 # Figures are bare ``Figure`` objects, not pyplot's: they render to PNG with Agg
 # headless, leave the process's backend alone and need no closing.
@@ -58,8 +59,8 @@ def plot_bands(config: Config, results: pd.DataFrame, out_dir: Path,
             ax.set_ylabel(f"{output} [{unit}]" if unit else output)
             ax.legend(loc="upper left", fontsize=8, ncol=2)
             ax.grid(alpha=0.3)
-            path = out_dir / f"band_{test.name}_{output}.png"
-            fig.savefig(path, dpi=110)
+            path = inside(out_dir, f"band_{test.name}_{output}.png")
+            save_figure(fig, path, dpi=110)
             paths.append(path)
     return paths
 
@@ -128,5 +129,5 @@ def plot_mu_star_sigma(indices: pd.DataFrame, path: Path, title: str = "", unit:
     ax.set_title(f"Morris screening: {title}" if title else "Morris screening")
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

@@ -20,6 +20,7 @@ from SALib.sample import morris as salib_morris
 
 from bpsflow.config import Config, Parameter
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_parquet
 
 SAMPLES_FILE = "samples.parquet"
 UNIT_DESIGN_FILE = "design_unit.parquet"
@@ -103,8 +104,8 @@ def sample(config: Config) -> Design:
 def write_design(design: Design, run_dir: Path) -> Path:
     """Write ``samples.parquet`` and ``design_unit.parquet`` into ``run_dir``."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    design.values.reset_index().to_parquet(run_dir / SAMPLES_FILE, index=False)
-    design.unit.reset_index().to_parquet(run_dir / UNIT_DESIGN_FILE, index=False)
+    write_parquet(design.values.reset_index(), run_dir / SAMPLES_FILE, index=False)
+    write_parquet(design.unit.reset_index(), run_dir / UNIT_DESIGN_FILE, index=False)
     return run_dir / SAMPLES_FILE
 
 

@@ -62,7 +62,7 @@ from bpsflow.alignment import align, evaluation_hours
 from bpsflow.config import Config, Parameter
 from bpsflow.distributions import Constant
 from bpsflow.errors import BpsflowError
-from bpsflow.files import jsonable, write_csv, write_json
+from bpsflow.files import inside, jsonable, write_csv, write_json, write_text_atomic
 from bpsflow.sampling import UNIT_DESIGN_FILE, Design, morris_unit, transform
 
 MORRIS_DIR = "morris"
@@ -216,8 +216,8 @@ def prepare_morris(config: Config, backend: str,
     design = morris_design(config)
     write_design(design, run_dir)
     ensure_sequences(config)
-    (run_dir / "config.resolved.yaml").write_text(
-        yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
+    write_text_atomic(run_dir / "config.resolved.yaml",
+                      yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
     write_json(settings_path, settings)
     return design.values
 
@@ -467,7 +467,7 @@ def plot_all(config: Config, indices: pd.DataFrame, out_dir: Path,
     for response, frame in indices.groupby("response", sort=False):
         output = response.split(":", 1)[1]
         paths.append(plot_mu_star_sigma(
-            frame, out_dir / f"morris_{response.replace(':', '_')}.png", title=response,
+            frame, inside(out_dir, f"morris_{response.replace(':', '_')}.png"), title=response,
             unit=config.outputs[output].unit, label_top=label_top, group_order=group_order))
     return paths
 
@@ -579,6 +579,6 @@ def write_screened_config(config: Config, indices: pd.DataFrame, top: int,
     header = (f"# Morris screening of {config.source.name}: {len(kept)} input(s) kept (the top "
               f"{top} by mu* of each response),\n# {len(raw['parameters'])} fixed at their "
               f"nominal value (see each one's provenance). Written by bpsflow sensitivity.\n")
-    out_path.write_text(header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True))
+    write_text_atomic(out_path, header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True))
     load_config(out_path)  # a reduced config that does not load must not go unnoticed
     return out_path, kept, [p["name"] for p in raw["parameters"]]

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from bpsflow.config import Config, _format_location
 from bpsflow.errors import BpsflowError
-from bpsflow.files import read_user_text, write_json
+from bpsflow.files import read_user_text, write_csv, write_json
 
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
@@ -198,7 +198,7 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     backend = simulator.name
     measured = measurements_from_outputs(config, outputs, truth)
     path = out_dir / MEASURED_FILE
-    measured.to_csv(path, index_label="timestamp", float_format="%.6g")
+    write_csv(measured, path, index_label="timestamp", float_format="%.6g")
     record = {"values": sample, "noise": {k: v.model_dump() for k, v in truth.noise.items()},
               "seed": truth.seed, "backend": backend}
     if detailed:

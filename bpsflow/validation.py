@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from bpsflow import metrics
 from bpsflow.alignment import Aligned, align
 from bpsflow.config import Config
-from bpsflow.files import write_csv, write_json
+from bpsflow.files import save_figure, write_csv, write_json
 from bpsflow.measured import MeasuredData
 
 TEMPERATURE_UNITS = {"C", "°C", "DEGC", "K"}
@@ -155,5 +155,5 @@ def plot_scores(validations: list[TestValidation], path: Path) -> Path:
         ax.legend(fontsize=7)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_text_atomic
 from bpsflow.yearhours import hour_rows
 
 #: 0-based column of each quantity in an EPW data row (EnergyPlus Auxiliary Programs, ch. 2).
@@ -189,5 +190,4 @@ def write_epw(epw: EpwFile, changed: dict[str, np.ndarray], path: Path,
             column = EPW_COLUMNS[name]
             row[column] = formats[column].format(values[i])
         lines[i] = ",".join(row)
-    path.write_text("\n".join(epw.header) + "\n" + "\n".join(lines) + "\n")
-    return path
+    return write_text_atomic(path, "\n".join(epw.header) + "\n" + "\n".join(lines) + "\n")

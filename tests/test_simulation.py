@@ -5,6 +5,8 @@ from __future__ import annotations
 import ast
 import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -103,10 +105,23 @@ def test_corrupt_instance_files_are_rerun_to_the_same_results(tmp_path):
 def test_a_second_run_on_a_locked_directory_refuses(tmp_path):
     config = toy_config(tmp_path)
     rundir.prepare_run_dir(config.run_dir)
-    with rundir.RunLock(config.run_dir):
-        with pytest.raises(BpsflowError, match=f"in use by another bpsflow process.*pid {os.getpid()}"):
+    # Another process holds the lock (the same process may nest it: a command and its loop).
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from bpsflow.simulation.rundir import RunLock\n"
+         f"with RunLock({str(config.run_dir)!r}):\n print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(BpsflowError, match=f"in use by another bpsflow process.*pid {holder.pid}"):
             run_ensemble(config, design(2), ToyBackend(), jobs=1, show_progress=False)
-    # A lock left by a process that no longer exists is taken over.
+    finally:
+        holder.kill()
+        holder.wait()
+    # The kernel released the killed holder's lock: its left-over file is taken over.
+    assert (config.run_dir / rundir.LOCK_FILE).exists()
+    summary = run_ensemble(config, design(2), ToyBackend(), jobs=1, show_progress=False)
+    assert summary.ok == 2 and not (config.run_dir / rundir.LOCK_FILE).exists()
+    # So is a lock file naming a process that no longer exists.
     (config.run_dir / rundir.LOCK_FILE).write_text(f"{os.uname().nodename} 999999999 then\n")
     summary = run_ensemble(config, design(2), ToyBackend(), jobs=1, show_progress=False)
     assert summary.ok == 2 and not (config.run_dir / rundir.LOCK_FILE).exists()

@@ -37,6 +37,7 @@ from bpsflow.calibration.settings import DEFAULT_VARIABLE_INPUTS, CalibrationSet
 from bpsflow.config import Config, Parameter, Test, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_parquet
 from bpsflow.sampling import latin_hypercube_unit
 from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 
@@ -153,7 +154,7 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
             pd.read_parquet(previous).set_index("instance"), samples)):
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    samples.reset_index().to_parquet(previous, index=False)
+    write_parquet(samples.reset_index(), previous, index=False)
     cfg = run_config(config, run_dir, backend)
     ensure_sequences(cfg)
     summary = run_ensemble(cfg, samples, get_backend(backend), show_progress=show_progress,

@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 
 from bpsflow.calibration.design import unit_to_values
 from bpsflow.calibration.workflow import CalibrationRun
-from bpsflow.files import write_csv, write_json, write_parquet
+from bpsflow.files import inside, save_figure, write_csv, write_json, write_parquet
 
 CALIBRATION_FILE = "calibration.json"
 POSTERIOR_FILE = "posterior.parquet"
@@ -295,7 +295,7 @@ def plot_prior_posterior(run: CalibrationRun, path: Path) -> Path:
         ax.tick_params(labelsize=7)
     axes[0].legend(fontsize=6)
     fig.suptitle(f"{run.scenario.name}: prior vs posterior", fontsize=9)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path
 
 
@@ -318,7 +318,7 @@ def plot_emulator_test(run: CalibrationRun, path: Path) -> Path | None:
         ax.set_ylabel("emulator", fontsize=8)
     fig.suptitle(f"{run.scenario.name}: emulator test ({len(test.test_runs)} held-out runs)",
                  fontsize=9)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path
 
 
@@ -360,8 +360,8 @@ def plot_heldout(run: CalibrationRun, folder: Path) -> list[Path]:
         ax.set_title(f"{run.scenario.name}: held-out {resolution} {output}", fontsize=9)
         ax.legend(fontsize=7, ncol=3)
         ax.grid(alpha=0.3)
-        path = folder / f"heldout_{output}_{resolution}.png"
-        fig.savefig(path, dpi=110)
+        path = inside(folder, f"heldout_{output}_{resolution}.png")
+        save_figure(fig, path, dpi=110)
         paths.append(path)
     return paths
 
@@ -378,5 +378,5 @@ def plot_trace(run: CalibrationRun, path: Path) -> Path:
         rhat = run.convergence.per_quantity[name]["rhat"]
         ax.set_title(f"{name} (R-hat {rhat:.3f})", fontsize=7)
         ax.tick_params(labelsize=6)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     return path

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 
 from bpsflow.calibration.report import parameter_table
 from bpsflow.calibration.workflow import CalibrationRun
-from bpsflow.files import write_csv, write_json
+from bpsflow.files import save_figure, write_csv, write_json
 
 SCENARIOS_CSV = "scenarios.csv"
 SCENARIOS_JSON = "scenarios.json"
@@ -115,5 +115,5 @@ def plot_comparison(runs: list[CalibrationRun], path: Path) -> Path:
     right.set_xticks(range(len(keys)), [k.replace(":", "\n") for k in keys], fontsize=6)
     right.set_ylabel("held-out CV(RMSE) [-] or RMSE [°C]")
     right.legend(fontsize=7)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

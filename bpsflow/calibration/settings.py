@@ -27,7 +27,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-_NAME = r"^[A-Za-z_][A-Za-z0-9_.\-]*$"
+from bpsflow.names import SafeName
 
 Resolution = Literal["daily", "hourly"]
 
@@ -183,7 +183,7 @@ class DeterministicSettings(_Strict):
 class Scenario(_Strict):
     """One data scenario (seed Table 4.1): which outputs, at which resolution."""
 
-    name: str = Field(pattern=_NAME)
+    name: SafeName
     outputs: list[str] = Field(min_length=1)
     resolution: Resolution = "daily"
     variable_inputs: list[str] | None = None

@@ -50,6 +50,7 @@ import pandas as pd
 from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Uniform
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_text_atomic
 
 if TYPE_CHECKING:
     from bpsflow.simulation.idf import IdfModel, IdfObject
@@ -447,7 +448,7 @@ def extend_config(config: Config, extension: Extension, directory: Path,
     rendered = render_snippet(extension, model, zone, variant)
     tag = "" if variant is None else f"_v{variant}"
     snippet = directory / extension.snippet.replace(".idf", f"{tag}.idf")
-    snippet.write_text(rendered.text)
+    write_text_atomic(snippet, rendered.text)
     if rendered.file_name is not None:
         if schedule is None:
             raise ValueError(f"extension {extension.name} needs its schedule values")

@@ -28,6 +28,7 @@ import yaml
 from bpsflow.config import Config, load_config
 from bpsflow.diagnosis.extensions import NAME_PREFIX
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_text_atomic
 
 if TYPE_CHECKING:
     from bpsflow.simulation.idf import IdfModel
@@ -160,14 +161,14 @@ def write_truth(base_config: Path, directory: Path, effect: str | None, value: f
         if zone is None:
             zone = diagnosis_zone(config, output, EXPECTED[effect][1], model)
         snippet = directory / "hidden_effect.idf"
-        snippet.write_text(render_effect(effect, value, model, zone))
+        write_text_atomic(snippet, render_effect(effect, value, model, zone))
         raw["model"] = {"idf_objects": [snippet.name]}
         if effect == "east_aperture":
             _write_east_irradiance(config, directory)
     config_path = directory / "truth_config.yaml"
-    config_path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    write_text_atomic(config_path, yaml.safe_dump(raw, sort_keys=False))
     truth_path = directory / "truth_values.yaml"
-    truth_path.write_text(yaml.safe_dump({
+    write_text_atomic(truth_path, yaml.safe_dump({
         "seed": int(seed), "values": {k: float(v) for k, v in parameter_values.items()},
         "noise": {output: {"kind": "relative", "bound": float(noise_bound),
                            "autocorrelation": float(autocorrelation)}}}, sort_keys=False))

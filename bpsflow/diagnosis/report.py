@@ -21,6 +21,7 @@ import pandas as pd
 
 from bpsflow.diagnosis.drivers import DRIVER_UNITS
 from bpsflow.diagnosis.workflow import Diagnosis, settings_of
+from bpsflow.files import inside, save_figure, write_csv, write_text_atomic
 
 JSON_FILE = "diagnosis.json"
 MARKDOWN_FILE = "diagnosis.md"
@@ -98,12 +99,12 @@ def write_diagnosis(d: Diagnosis, out_dir: Path) -> dict[str, Path]:
     record = diagnosis_record(d)
     paths = {"json": out_dir / JSON_FILE, "markdown": out_dir / MARKDOWN_FILE,
              "residuals": out_dir / RESIDUALS_FILE}
-    paths["json"].write_text(json.dumps(record, indent=2, default=_jsonable))
-    residuals_table(d).to_csv(paths["residuals"])
+    write_text_atomic(paths["json"], json.dumps(record, indent=2, default=_jsonable))
+    write_csv(residuals_table(d), paths["residuals"])
     paths.update(write_figures(d, figures))
-    paths["markdown"].write_text(markdown(d, record, {k: v.relative_to(out_dir)
-                                                      for k, v in paths.items()
-                                                      if v.suffix == ".png"}))
+    write_text_atomic(paths["markdown"], markdown(d, record, {k: v.relative_to(out_dir)
+                                                            for k, v in paths.items()
+                                                            if v.suffix == ".png"}))
     return paths
 
 
@@ -183,7 +184,7 @@ def write_figures(d: Diagnosis, figures: Path) -> dict[str, Path]:
     ax.set_ylabel(f"residual ({d.output})")
     ax.set_title(f"residual vs the strongest driver ({top})")
     ax.legend()
-    out["top_driver"] = _save(fig, figures / f"residual_vs_{top}.png")
+    out["top_driver"] = _save(fig, inside(figures, f"residual_vs_{top}.png"))
 
     lags = min(72, len(residual) // 4)
     acf = autocorrelation(residual, lags)
@@ -223,7 +224,7 @@ def _binned(ax, x: np.ndarray, y: np.ndarray, bins: int = 12) -> None:
 
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

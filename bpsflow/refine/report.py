@@ -18,7 +18,7 @@ import yaml
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from bpsflow.files import jsonable, write_json
+from bpsflow.files import inside, jsonable, save_figure, write_csv, write_json, write_text_atomic
 from bpsflow.refine.parameters import BOUND_SIGMAS, INTERVAL, distribution_from, relative_file
 from bpsflow.refine.refinement import Refinement, samples_file
 
@@ -45,14 +45,14 @@ def write_refinement(refinement: Refinement, out_dir: Path,
     paths: dict[str, Path] = {}
     for refined in refinement.parameters:
         if refined.samples is not None:
-            refined.samples.to_csv(config_path.parent / samples_file(refined.baseline),
-                                   index_label="timestamp", float_format="%.6g")
+            write_csv(refined.samples, inside(config_path.parent, samples_file(refined.baseline)),
+                      index_label="timestamp", float_format="%.6g")
     if refinement.boundary:
         paths["boundary"] = write_boundary(refinement, config_path.parent / BOUNDARY_FILE)
     paths["config"] = write_config(refinement, config_path)
     paths["convection_csv"] = out_dir / CONVECTION_CSV
-    convection_table(refinement).to_csv(paths["convection_csv"], index=False,
-                                        float_format="%.6g")
+    write_csv(convection_table(refinement), paths["convection_csv"], index=False,
+              float_format="%.6g")
     paths["json"] = out_dir / REFINE_JSON
     write_json(paths["json"], summary(refinement, paths))
     paths["distributions_figure"] = plot_distributions(
@@ -69,7 +69,7 @@ def write_boundary(refinement: Refinement, path: Path) -> Path:
     for surface in refinement.boundary:
         column = table.columns.get_loc(surface.column)
         table.iloc[surface.rows, column] = surface.hourly["mean"].to_numpy()
-    table.to_csv(path, index=False, float_format="%.4f")
+    write_csv(table, path, index=False, float_format="%.4f")
     return path
 
 
@@ -105,7 +105,8 @@ def write_config(refinement: Refinement, path: Path) -> Path:
     header = (f"# Refined by 'bpsflow refine' from {refinement.detailed.detailed_path}\n"
               f"# (seed §3.4.3-3.5). Only refined inputs are listed; the rest come from the\n"
               f"# baseline config named in 'extends'. See refine.json for all estimates.\n")
-    path.write_text(header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True, width=100))
+    write_text_atomic(path, header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True,
+                                                 width=100))
     return path
 
 
@@ -260,7 +261,7 @@ def plot_distributions(refinement: Refinement, path: Path) -> Path:
     figure.suptitle("Refined vs baseline input distributions (densities scaled per panel)",
                     fontsize=10)
     figure.tight_layout(rect=(0, 0.05, 1, 0.95))
-    figure.savefig(path, dpi=110)
+    save_figure(figure, path, dpi=110)
     return path
 
 
@@ -289,7 +290,7 @@ def plot_convection(refinement: Refinement, path: Path) -> Path:
         ax.set_ylabel("log h_c (W/m²K)")
         ax.legend(fontsize=7)
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
+    save_figure(figure, path, dpi=110)
     return path
 
 

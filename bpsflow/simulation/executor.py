@@ -13,6 +13,8 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
+from bpsflow.simulation.parentdeath import run_in_worker
+
 
 class Executor(Protocol):
     jobs: int
@@ -25,6 +27,8 @@ class Executor(Protocol):
 
 class LocalExecutor:
     """joblib worker processes on this machine (one process: run in this one).
+
+    Workers die with this process on Linux (``PR_SET_PDEATHSIG``).
 
     Parameters
     ----------
@@ -44,9 +48,12 @@ class LocalExecutor:
             return
         from joblib import Parallel, delayed
 
+        parent = os.getpid()
+        # Each worker dies with this process (Linux): a killed run leaves no orphan writing
+        # into its run directory (see bpsflow.simulation.parentdeath).
         yield from Parallel(n_jobs=min(self.jobs, len(tasks)), batch_size=1,
                             return_as="generator_unordered")(
-            delayed(function)(*task) for task in tasks)
+            delayed(run_in_worker)(parent, function, *task) for task in tasks)
 
 
 def local_executor(jobs: int | None = None) -> LocalExecutor:

@@ -8,7 +8,9 @@ Layout::
       boundary_sequences.npz Monte Carlo boundary sequences (when sampled)
       manifest.parquet       instance, status, seconds (write/simulate/read), error, backend
       results.parquet        tidy: instance, test, output, timestamp, value
-      run.lock               held while a command runs instances here
+      run.lock               held while a command writes here (a second one refuses)
+      design.json            what determined samples.parquet (compared before it is used)
+      previous/<timestamp>/  what 'bpsflow sample --force' moved aside
       instances/000017/      per instance: outputs.parquet, and what the backend keeps
                              (EnergyPlus: per period eplusout.sql and eplusout.err)
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import os
 import socket
+import sys
 import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields
@@ -29,6 +32,12 @@ from pathlib import Path
 import pandas as pd
 
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_parquet
+
+try:  # POSIX: a lock the kernel releases when its process dies
+    import fcntl as _fcntl
+except ImportError:  # pragma: no cover - Windows
+    _fcntl = None  # type: ignore[assignment]
 
 MANIFEST_FILE = "manifest.parquet"
 RESULTS_FILE = "results.parquet"
@@ -61,11 +70,8 @@ def instance_dir(run_dir: Path, instance: int | str) -> Path:
 
 
 def atomic_parquet(frame: pd.DataFrame, path: Path) -> Path:
-    """Write ``frame`` to ``path`` through a temporary file, so a crash never leaves half a file."""
-    temporary = path.with_name(path.name + f".{os.getpid()}.tmp")
-    frame.to_parquet(temporary, index=False)
-    temporary.replace(path)
-    return path
+    """Write ``frame`` to ``path`` atomically (no index), so a crash never leaves half a file."""
+    return write_parquet(frame, path, index=False)
 
 
 def read_instance_outputs(run_dir: Path, instance: int | str) -> pd.DataFrame | None:
@@ -166,33 +172,141 @@ def read_results(run_dir: Path) -> pd.DataFrame:
 
 
 def prepare_run_dir(run_dir: Path) -> Path:
-    """Create the run directory, with a clear error when that is not possible."""
+    """Create the run directory, with a clear error when that is not possible.
+
+    Raises
+    ------
+    BpsflowError
+        ``run_dir`` (or a parent of it) is a file, cannot be created, or is
+        not writable; the message names the path and says what was expected.
+    """
     run_dir = Path(run_dir)
+    where = "execution.run_dir (or --run-dir)"
+    if run_dir.exists() and not run_dir.is_dir():
+        raise BpsflowError(f"{where}: {run_dir} is a file; expected a folder (or a path where "
+                           f"bpsflow may create one)")
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
-        raise BpsflowError(f"execution.run_dir: {run_dir} exists and is not a directory "
-                           f"(or a parent of it is a file)") from None
+        blocker = next((p for p in run_dir.parents if p.exists() and not p.is_dir()), run_dir)
+        raise BpsflowError(f"{where}: cannot create {run_dir}: {blocker} is a file; expected "
+                           f"a folder") from None
     except PermissionError:
-        raise BpsflowError(f"execution.run_dir: no permission to create {run_dir}") from None
+        raise BpsflowError(f"{where}: cannot create {run_dir}: no permission to write in "
+                           f"{_nearest_existing(run_dir)}; expected a writable folder") from None
     if not os.access(run_dir, os.W_OK | os.X_OK):
-        raise BpsflowError(f"execution.run_dir: {run_dir} is not writable")
+        raise BpsflowError(f"{where}: {run_dir} is not writable; expected a folder bpsflow may "
+                           f"write in (or another --run-dir)")
     return run_dir
 
 
-class RunLock:
-    """An exclusive lock on a run directory while instances run there.
+def _nearest_existing(path: Path) -> Path:
+    return next((p for p in (path, *path.parents) if p.exists()), path)
 
-    The lock file names the holder (host, process id, start time); a lock
-    left by a process that no longer exists on this host is taken over.
+
+def move_aside(run_dir: Path, names: Iterable[str], reason: str = "previous") -> Path | None:
+    """Move the named files and folders of ``run_dir`` into ``run_dir/previous/<timestamp>/``.
+
+    A rename within one file system: nothing is copied, nothing is lost, and
+    the user decides later what to delete.
+
+    Parameters
+    ----------
+    run_dir : Path
+    names : iterable of str
+        Entries of ``run_dir`` to move (missing ones are skipped).
+    reason : str
+        The folder under ``run_dir`` that receives them.
+
+    Returns
+    -------
+    Path or None
+        The folder they went to, or None when none of them existed.
+    """
+    run_dir = Path(run_dir)
+    present = [name for name in names if (run_dir / name).exists()]
+    if not present:
+        return None
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    target = run_dir / reason / stamp
+    suffix = 1
+    while target.exists():
+        suffix += 1
+        target = run_dir / reason / f"{stamp}-{suffix}"
+    target.mkdir(parents=True)
+    for name in present:
+        (run_dir / name).rename(target / name)
+    return target
+
+
+#: Lock paths this process holds, with their nesting depth: a command locks its run
+#: directory and the ensemble loop it calls locks the same one again.
+_HELD: dict[Path, int] = {}
+
+
+class RunLock:
+    """An exclusive lock on a run directory while a command writes there.
+
+    The lock file names the holder (host, process id, start time, command).
+    On POSIX the file is also ``flock``-ed: the kernel releases that lock
+    when its process dies, however it dies, so a lock left by a killed
+    process is taken over without guessing from process ids. Elsewhere a
+    lock whose process no longer exists on this host is taken over. The
+    same process may take the lock again (nested), e.g. a command and the
+    ensemble loop it calls.
     """
 
     def __init__(self, run_dir: Path):
-        self.path = Path(run_dir) / LOCK_FILE
+        self.path = Path(run_dir).resolve() / LOCK_FILE
         self.held = False
+        self._descriptor: int | None = None
 
     def __enter__(self) -> RunLock:
-        me = f"{socket.gethostname()} {os.getpid()} {time.strftime('%Y-%m-%dT%H:%M:%S')}"
+        if self.path in _HELD:
+            _HELD[self.path] += 1
+            self.held = True
+            return self
+        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv else "python"
+        me = (f"{socket.gethostname()} {os.getpid()} {time.strftime('%Y-%m-%dT%H:%M:%S')}\n"
+              f"{command}\n")
+        acquire = self._acquire_flock if _fcntl is not None else self._acquire_exclusive
+        acquire(me)
+        _HELD[self.path] = 1
+        self.held = True
+        return self
+
+    def _refuse(self) -> BpsflowError:
+        holder = self._holder()
+        text = ", ".join(holder[2]) if holder else "unknown process"
+        return BpsflowError(
+            f"{self.path.parent} is in use by another bpsflow process ({text}); wait for it to "
+            f"finish, or use another --run-dir")
+
+    def _acquire_flock(self, me: str) -> None:
+        assert _fcntl is not None
+        for _ in range(20):
+            descriptor = os.open(self.path, os.O_CREAT | os.O_RDWR, 0o644)
+            try:
+                _fcntl.flock(descriptor, _fcntl.LOCK_EX | _fcntl.LOCK_NB)
+            except OSError:
+                os.close(descriptor)
+                raise self._refuse() from None
+            # The holder before us may have removed the file between our open and our
+            # flock: then we locked a file nobody else sees. Start again on the new one.
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(descriptor).st_ino
+            except FileNotFoundError:
+                same = False
+            if not same:
+                os.close(descriptor)
+                continue
+            os.ftruncate(descriptor, 0)
+            os.write(descriptor, me.encode())
+            self._descriptor = descriptor
+            return
+        raise BpsflowError(f"could not lock {self.path.parent}: its lock file keeps changing")
+
+    def _acquire_exclusive(self, me: str) -> None:
         for _ in range(2):
             try:
                 descriptor = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -201,26 +315,34 @@ class RunLock:
                 if holder is not None and not _alive(*holder[:2]):
                     self.path.unlink(missing_ok=True)
                     continue
-                text = " ".join(holder[2]) if holder else "unknown"
-                raise BpsflowError(
-                    f"{self.path.parent} is in use by another bpsflow process ({text}); wait for "
-                    f"it to finish, or remove {self.path} if that process is gone") from None
+                raise self._refuse() from None
             with os.fdopen(descriptor, "w") as handle:
-                handle.write(me + "\n")
-            self.held = True
-            return self
+                handle.write(me)
+            return
         raise BpsflowError(f"could not lock {self.path.parent}")
 
     def __exit__(self, *exc) -> None:
-        if self.held:
-            self.path.unlink(missing_ok=True)
-            self.held = False
+        if not self.held:
+            return
+        self.held = False
+        _HELD[self.path] -= 1
+        if _HELD[self.path]:
+            return
+        del _HELD[self.path]
+        # Remove the file while still holding the flock, so that nobody locks a stale inode.
+        self.path.unlink(missing_ok=True)
+        if self._descriptor is not None:
+            os.close(self._descriptor)
+            self._descriptor = None
 
     def _holder(self) -> tuple[str, int, list[str]] | None:
         try:
-            parts = self.path.read_text().split()
-            return parts[0], int(parts[1]), [f"host {parts[0]}", f"pid {parts[1]}",
-                                             f"since {parts[2]}"]
+            lines = self.path.read_text().splitlines()
+            host, pid, since = lines[0].split()[:3]
+            described = [f"pid {pid}", f"host {host}", f"since {since}"]
+            if len(lines) > 1 and lines[1].strip():
+                described.append(f"command '{lines[1].strip()}'")
+            return host, int(pid), described
         except (OSError, IndexError, ValueError):
             return None
 

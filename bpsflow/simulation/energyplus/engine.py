@@ -21,6 +21,7 @@ from pathlib import Path
 import pandas as pd
 
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.parentdeath import child_preexec
 
 ENV_BINARY = "BPSFLOW_ENERGYPLUS"
 
@@ -99,7 +100,10 @@ def run_energyplus(binary: Path, idf: Path, weather: Path, out_dir: Path,
         completed = subprocess.run(
             [str(binary), "-w", str(weather), "-d", str(out_dir), str(idf)],
             cwd=out_dir, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-            timeout=timeout_s, check=False)
+            timeout=timeout_s, check=False,
+            # EnergyPlus dies with the process that runs it (Linux), so a killed run
+            # leaves no engine writing into its run directory
+            preexec_fn=child_preexec())
     except subprocess.TimeoutExpired:
         return RunOutcome(False, time.perf_counter() - started, f"timed out after {timeout_s} s")
     except OSError as exc:

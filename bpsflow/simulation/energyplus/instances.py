@@ -31,6 +31,7 @@ from bpsflow.config import (
     period_dates,
 )
 from bpsflow.errors import BpsflowError
+from bpsflow.files import write_text_atomic
 from bpsflow.simulation.idf import describe_model, model_objects, model_text
 from bpsflow.simulation.setpoints import (
     ThermostatPlan,
@@ -441,8 +442,7 @@ def _write_period_idf(config: Config, template: Template, sample: dict[str, floa
     parts = [template.pieces[0]]
     for number, piece in zip(template.order, template.pieces[1:]):
         parts += [texts[number], piece]
-    path.write_text("".join(parts))
-    return path
+    return write_text_atomic(path, "".join(parts))
 
 
 def check_model(config: Config, idd: Path) -> Template:

@@ -1,0 +1,187 @@
+"""What determined a run directory's design, recorded beside it and compared before use.
+
+``samples.parquet`` and ``boundary_sequences.npz`` are drawn from part of the
+config only: the parameters (distributions, modes, targets), the ``design``
+section and the boundary-temperature settings. ``design.json`` records those
+inputs, flattened to key paths, when the design is drawn. A command that
+would use the run directory's samples or results compares the record with
+the config in hand: a difference means finished instances were drawn (and
+run) for another design, and mixing them with new ones would be a silently
+wrong answer, so it is an error naming the changed key.
+
+Not part of the design (they may change freely between commands): the
+execution settings (``jobs``, ``run_dir``, ``keep_files``), the backend, the
+outputs and tests, validation, calibration and diagnosis settings, and a
+parameter's ``group``, ``description`` and ``provenance``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from bpsflow.errors import BpsflowError
+from bpsflow.files import jsonable, write_json
+
+if TYPE_CHECKING:
+    from bpsflow.config import Config
+
+DESIGN_FILE = "design.json"
+
+#: Parameter keys that describe a parameter without changing what is drawn or simulated.
+_COSMETIC = ("group", "description", "provenance")
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def design_inputs(config: Config) -> dict[str, Any]:
+    """The config's design inputs as ``{key path: JSON value}``.
+
+    File paths are replaced by their content's SHA-256, so that moving a
+    project folder is not a design change but editing a data file is.
+
+    Parameters
+    ----------
+    config : Config
+
+    Returns
+    -------
+    dict
+        Key paths (``design.samples``, ``parameters.<name>.distribution``,
+        ``model.boundary.file`` ...) to plain JSON values.
+    """
+    from bpsflow.distributions import Empirical
+
+    design = config.design
+    inputs: dict[str, Any] = {"design.method": design.method, "design.seed": design.seed}
+    if design.method == "lhs":
+        inputs["design.samples"] = design.samples
+    else:
+        inputs["design.levels"] = design.levels
+        inputs["design.trajectories"] = design.trajectories
+    inputs["parameters (names, in order)"] = [p.name for p in config.parameters]
+    for parameter in config.parameters:
+        where = f"parameters.{parameter.name}"
+        distribution = parameter.distribution.model_dump(mode="json")
+        if isinstance(parameter.distribution, Empirical):
+            distribution.pop("file", None)
+            values = np.asarray(parameter.distribution.values_, dtype=float)
+            distribution["values (sha256)"] = hashlib.sha256(values.tobytes()).hexdigest()
+        inputs[f"{where}.distribution"] = distribution
+        inputs[f"{where}.mode"] = parameter.mode
+        inputs[f"{where}.targets"] = [t.model_dump(mode="json") for t in parameter.targets]
+    boundary = config.model.boundary
+    if boundary is not None:
+        dumped = boundary.model_dump(mode="json", exclude={"file"})
+        for key, value in dumped.items():
+            inputs[f"model.boundary.{key}"] = value
+        inputs["model.boundary.file (sha256)"] = _digest(boundary.file)
+        # The sequences cover the run periods' hours of the model year.
+        inputs["model.year"] = config.model.year
+        inputs["model.periods"] = [p.model_dump(mode="json") for p in config.model.periods]
+    return jsonable(inputs)
+
+
+def write_design_record(config: Config, run_dir: Path) -> Path:
+    """Write ``design.json`` (the config's :func:`design_inputs`) into ``run_dir``."""
+    return write_json(Path(run_dir) / DESIGN_FILE, {"inputs": design_inputs(config)})
+
+
+def read_design_record(run_dir: Path) -> dict[str, Any] | None:
+    """The recorded design inputs, or None when ``design.json`` is missing or unreadable."""
+    path = Path(run_dir) / DESIGN_FILE
+    try:
+        inputs = json.loads(path.read_text())["inputs"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return inputs if isinstance(inputs, dict) else None
+
+
+def changed_keys(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """``key: old -> new`` for every key path whose value differs (missing shown as ``-``)."""
+    changes = []
+    for key in list(recorded) + [k for k in current if k not in recorded]:
+        old, new = recorded.get(key, "-"), current.get(key, "-")
+        if old != new:
+            changes.append(f"{key}: {_short(old)} -> {_short(new)}")
+    return changes
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = json.dumps(value) if not isinstance(value, str) else value
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def design_changes(config: Config, run_dir: Path) -> list[str] | None:
+    """How the config's design differs from the one ``run_dir``'s samples were drawn with.
+
+    Returns
+    -------
+    list of str or None
+        ``[]`` when they agree, the changed keys when they differ, None when
+        the run directory holds no samples. A run directory drawn before
+        ``design.json`` existed is compared by drawing the design again; when
+        it matches the record is written.
+    """
+    from bpsflow.sampling import SAMPLES_FILE
+
+    run_dir = Path(run_dir)
+    samples_path = run_dir / SAMPLES_FILE
+    if not samples_path.is_file():
+        return None
+    recorded = read_design_record(run_dir)
+    if recorded is not None:
+        return changed_keys(recorded, design_inputs(config))
+    if _same_as_redrawn(config, samples_path):
+        write_design_record(config, run_dir)
+        return []
+    return [f"{SAMPLES_FILE} differs from the design the config draws (no {DESIGN_FILE} "
+            f"records what drew it)"]
+
+
+def _same_as_redrawn(config: Config, samples_path: Path) -> bool:
+    import pandas as pd
+
+    from bpsflow.sampling import sample
+
+    try:
+        stored = pd.read_parquet(samples_path).set_index("instance")
+        drawn = sample(config).values
+    except Exception:  # unreadable samples or a design that no longer draws: not the same
+        return False
+    return (list(stored.columns) == list(drawn.columns) and stored.shape == drawn.shape
+            and np.allclose(stored.to_numpy(dtype=float), drawn.to_numpy(dtype=float),
+                            rtol=1e-12, atol=0, equal_nan=True))
+
+
+def require_same_design(config: Config, run_dir: Path, command: str) -> None:
+    """Raise when ``run_dir`` holds samples of another design than the config's.
+
+    Parameters
+    ----------
+    config : Config
+    run_dir : Path
+    command : str
+        The command that would use them (named in the message).
+
+    Raises
+    ------
+    BpsflowError
+        Naming the run directory, the changed key(s) and the two ways out.
+    """
+    changes = design_changes(config, run_dir)
+    if not changes:
+        return
+    shown = "; ".join(changes[:3]) + (f"; and {len(changes) - 3} more" if len(changes) > 3 else "")
+    raise BpsflowError(
+        f"the config's design changed since the samples in {run_dir} were drawn ({shown}); "
+        f"'{command}' would mix results of the old and the new design. Draw the new design "
+        f"with 'bpsflow sample CONFIG --force' (the old results are moved to "
+        f"{Path(run_dir) / 'previous'}/<timestamp>), or use another --run-dir",
+        source=config.source)
