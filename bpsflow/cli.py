@@ -60,11 +60,22 @@ def _friendly(func):
     return wrapper
 
 
-def _load(config: Path, run_dir: Path | None):
-    from bpsflow.config import load_config
+def _load(config: Path, run_dir: Path | None,
+          options: dict[str, tuple[str, object]] | None = None):
+    """Load and validate ``config``; ``options`` maps a key path to (option, value given).
+
+    Options that override config keys go through the schema like the file's
+    keys (:func:`bpsflow.config.with_overrides`), so a bad value is refused,
+    naming the option and the bound, before anything is written or deleted.
+    """
+    from bpsflow.config import load_config, with_overrides
 
     overrides = {"execution": {"run_dir": str(run_dir.resolve())}} if run_dir else None
-    return load_config(config, overrides)
+    cfg = load_config(config, overrides)
+    if options:
+        cfg = with_overrides(cfg, {key: value for key, (_, value) in options.items()},
+                             {key: option for key, (option, _) in options.items()})
+    return cfg
 
 
 def _write_resolved(cfg) -> None:
@@ -88,7 +99,8 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
            force: bool = typer.Option(False, help="Discard instances already run in the run "
                                                   "directory and draw a new design.")) -> None:
     """Draw the design (LHS or Morris) and write samples.parquet."""
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"design.samples": ("--samples", samples),
+                                  "design.seed": ("--seed", seed)})
     rd = cfg.run_dir.resolve()
     if (rd / "instances").is_dir():
         if not force:
@@ -100,10 +112,6 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         shutil.rmtree(rd / "instances")
         for name in ("manifest.parquet", "results.parquet"):
             (rd / name).unlink(missing_ok=True)
-    if samples is not None:
-        cfg.design.samples = samples
-    if seed is not None:
-        cfg.design.seed = seed
     path = _sample(cfg)
     console.print(f"wrote {path} ({cfg.design.method}, {len(cfg.parameters)} parameters)")
 
@@ -190,7 +198,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
     rd = cfg.run_dir.resolve()
@@ -269,11 +277,7 @@ def validate(config: Path = ConfigArg,
     from bpsflow.validation import validate as run_validation
     from bpsflow.validation import write_outputs
 
-    cfg = _load(config, run_dir)
-    if q is not None:
-        if not 0 < q < 1:
-            raise BpsflowError(f"--q: expected a quantile between 0 and 1, got {q}")
-        cfg.validation.q = q
+    cfg = _load(config, run_dir, {"validation.q": ("--q", q)})
     rd = cfg.run_dir.resolve()
     observed = read_measured(measured)
     results = read_results(rd)
@@ -337,12 +341,17 @@ def sensitivity(
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
+    from bpsflow.config import with_overrides
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
     from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
+    # The Morris design the options ask for passes the schema (and its run cap) like a file's.
+    with_overrides(cfg, {"design.method": "morris", "design.trajectories": trajectories,
+                         "design.levels": levels},
+                   {"design.trajectories": "--trajectories", "design.levels": "--levels"})
     kind = response or ("difference" if measured else "raw")
     if kind not in morris.RESPONSE_KINDS:
         raise BpsflowError(f"--response: expected one of {', '.join(morris.RESPONSE_KINDS)}, "
@@ -491,7 +500,7 @@ def calibrate(config: Path = ConfigArg,
     from bpsflow.calibration.command import calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     settings = apply_overrides(settings_of(cfg),
                                outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
                                resolution=resolution, chains=chains, warmup=warmup,
@@ -522,7 +531,7 @@ def diagnose(config: Path = ConfigArg,
     """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
     from bpsflow.diagnosis.command import run_diagnose
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     run_diagnose(cfg, measured, out.resolve() if out else None, backend=backend, jobs=jobs,
                  show_progress=not no_progress, console=console)
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
@@ -47,8 +48,14 @@ def apply_overrides(settings: CalibrationSettings, *, outputs: list[str] | None 
         data["design"]["runs"] = runs
     try:
         return CalibrationSettings.model_validate(data)
-    except Exception as exc:  # pydantic's message names the option's key
-        raise BpsflowError(f"calibration option: {exc}") from None
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        key = ".".join(str(part) for part in first["loc"])
+        option = {"outputs": "--outputs", "resolution": "--resolution", "bayes.chains": "--chains",
+                  "bayes.warmup": "--warmup", "bayes.samples": "--samples",
+                  "design.runs": "--runs"}.get(key.split(".0")[0], "calibration option")
+        raise BpsflowError(f"{option} (calibration.{key}): "
+                           f"{first['msg'].removeprefix('Value error, ')}") from None
 
 
 def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
