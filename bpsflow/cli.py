@@ -120,9 +120,10 @@ def _sample(cfg) -> Path:
     from bpsflow.boundary import SEQUENCES_FILE, draw_sequences, period_hours, write_sequences
     from bpsflow.sampling import sample as draw
     from bpsflow.sampling import write_design
-    from bpsflow.simulation.target_bounds import check_distribution_support, check_sample_values
+    from bpsflow.simulation.model_inputs import check_model_inputs
+    from bpsflow.simulation.target_bounds import check_sample_values
 
-    check_distribution_support(cfg)
+    check_model_inputs(cfg)
     design = draw(cfg)
     check_sample_values(cfg, design.values, "the drawn design")
     run_dir = cfg.run_dir.resolve()

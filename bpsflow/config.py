@@ -677,17 +677,22 @@ def with_overrides(config: Config, overrides: Mapping[str, Any],
 
 
 def _resolve_paths(config: Config, path: Path) -> Config:
+    from bpsflow.simulation.model_inputs import check_idf_file
+
     base = path.resolve().parent
     model = config.model
     model.idf = _resolve(model.idf, base)
     if not model.idf.is_file():
         raise BpsflowError(f"model.idf: IDF file not found: {model.idf}", source=path)
+    # No command reads (or echoes) a model file that is not IDF objects of known types.
+    check_idf_file(model.idf, "model.idf")
     snippets: list[Path] = []
     for i, snippet in enumerate(model.idf_objects):
         snippet = _resolve(snippet, base)
         if not snippet.is_file():
             raise BpsflowError(f"model.idf_objects[{i}]: IDF snippet file not found: "
                                f"{snippet}", source=path)
+        check_idf_file(snippet, f"model.idf_objects[{i}]")
         if snippet not in snippets:
             snippets.append(snippet)
     model.idf_objects = snippets

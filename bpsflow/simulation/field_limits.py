@@ -35,7 +35,7 @@ from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import normalise
 
 __all__ = ["Limits", "UnknownFieldError", "field_limits", "field_position", "object_fields",
-           "check_value", "clip_to_limits", "SUM_BELOW_ONE", "check_sums", "parse_idd"]
+           "check_value", "clip_to_limits", "known_object_types", "SUM_BELOW_ONE", "check_sums", "parse_idd"]
 
 #: The bundled extract of the IDD (see the module docstring).
 EXTRACT = Path(__file__).with_name("idd_fields.json.gz")
@@ -170,6 +170,11 @@ def _extract() -> dict[str, tuple[str, tuple[Limits, ...]]]:
                                    bool(upper_x)))
         types[normalise(key)] = (spelling, tuple(unpacked))
     return types
+
+
+def known_object_types() -> dict[str, str]:
+    """Every object type of the IDD: upper case -> the IDD's spelling."""
+    return {spelling.upper(): spelling for spelling, _ in _extract().values()}
 
 
 def object_fields(object_type: str) -> tuple[Limits, ...]:

@@ -11,8 +11,8 @@ import pandas as pd
 
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.backend import Batch, CheckReport
+from bpsflow.simulation.model_inputs import check_model_inputs
 from bpsflow.simulation.rundir import RESULT_COLUMNS, InstanceRecord
-from bpsflow.simulation.target_bounds import check_distribution_support
 from bpsflow.surrogate.run import ignored_targets, simulate_instances
 from bpsflow.surrogate.support import unsupported_features
 
@@ -33,7 +33,7 @@ class SurrogateBackend:
         return unsupported_features(config)
 
     def check(self, config: Config) -> CheckReport:
-        check_distribution_support(config)
+        check_model_inputs(config)
         lacking = unsupported_features(config)
         if lacking:
             raise BpsflowError("the surrogate cannot represent this model: " + "; ".join(lacking)

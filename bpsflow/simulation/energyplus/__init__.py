@@ -26,8 +26,8 @@ from bpsflow.simulation.energyplus.engine import (
     run_energyplus,
 )
 from bpsflow.simulation.energyplus.instances import check_model, write_instance
+from bpsflow.simulation.model_inputs import check_model_inputs
 from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, RESULT_COLUMNS, InstanceRecord, instance_dir
-from bpsflow.simulation.target_bounds import check_distribution_support
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -144,7 +144,7 @@ class EnergyPlusBackend:
         return []
 
     def check(self, config: Config) -> CheckReport:
-        check_distribution_support(config)
+        check_model_inputs(config)
         template = check_model(config, idd_path(self.binary(config)))
         targets = template.targets
         return CheckReport(
