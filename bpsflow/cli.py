@@ -101,6 +101,9 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     """Draw the design (LHS or Morris) and write samples.parquet."""
     cfg = _load(config, run_dir, {"design.samples": ("--samples", samples),
                                   "design.seed": ("--seed", seed)})
+    from bpsflow.simulation.model_inputs import check_model_inputs
+
+    check_model_inputs(cfg)  # refuse bad model inputs before anything is discarded
     rd = cfg.run_dir.resolve()
     if (rd / "instances").is_dir():
         if not force:

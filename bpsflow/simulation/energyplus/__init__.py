@@ -28,6 +28,7 @@ from bpsflow.simulation.energyplus.engine import (
 from bpsflow.simulation.energyplus.instances import check_model, write_instance
 from bpsflow.simulation.model_inputs import check_model_inputs
 from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, RESULT_COLUMNS, InstanceRecord, instance_dir
+from bpsflow.simulation.target_bounds import check_sample_values
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -151,6 +152,10 @@ class EnergyPlusBackend:
             backend=self.name, idf_fields=sum(len(v) for v in targets.idf_fields.values()),
             weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
             controlled_zones=sorted(template.thermostats.zones))
+
+    def check_samples(self, config: Config, samples: pd.DataFrame) -> None:
+        """Refuse samples that set a field outside the IDD's bounds (before anything runs)."""
+        check_sample_values(config, samples)
 
     def simulate(self, config: Config, samples: pd.DataFrame, workdir: Path, *,
                  keep_inputs: bool = False) -> Batch:
