@@ -202,12 +202,14 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     from bpsflow.sampling import SAMPLES_FILE, read_samples
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
+    from bpsflow.simulation.model_inputs import check_model_inputs
     from bpsflow.simulation.rundir import read_results
     from bpsflow.synth import read_measured
 
     cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
+    check_model_inputs(cfg)  # before config.resolved.yaml or samples are written
     rd = cfg.run_dir.resolve()
     observed = read_measured(measured) if measured else None
     if not (rd / SAMPLES_FILE).is_file():
@@ -511,7 +513,7 @@ def calibrate(config: Path = ConfigArg,
     settings = apply_overrides(settings_of(cfg),
                                outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
                                resolution=resolution, chains=chains, warmup=warmup,
-                               samples=samples, runs=runs)
+                               samples=samples, runs=runs, source=cfg.source)
     outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
                               out=out.resolve() if out else None, backend=backend, jobs=jobs,
                               truth_path=truth, settings=settings, show_progress=not no_progress,

@@ -34,8 +34,12 @@ class Outcome:
 def apply_overrides(settings: CalibrationSettings, *, outputs: list[str] | None = None,
                     resolution: str | None = None, chains: int | None = None,
                     warmup: int | None = None, samples: int | None = None,
-                    runs: int | None = None) -> CalibrationSettings:
-    """A copy of ``settings`` with command-line overrides applied (validated)."""
+                    runs: int | None = None, source: Path | None = None) -> CalibrationSettings:
+    """A copy of ``settings`` with command-line overrides applied (validated).
+
+    A bad value is a :class:`BpsflowError` naming the option, the key and the
+    bound (``source``: the config file, for the message).
+    """
     data = settings.model_dump()
     if outputs:
         data["outputs"] = outputs
@@ -55,7 +59,7 @@ def apply_overrides(settings: CalibrationSettings, *, outputs: list[str] | None 
                   "bayes.warmup": "--warmup", "bayes.samples": "--samples",
                   "design.runs": "--runs"}.get(key.split(".0")[0], "calibration option")
         raise BpsflowError(f"{option} (calibration.{key}): "
-                           f"{first['msg'].removeprefix('Value error, ')}") from None
+                           f"{first['msg'].removeprefix('Value error, ')}", source=source) from None
 
 
 def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
