@@ -677,7 +677,7 @@ def with_overrides(config: Config, overrides: Mapping[str, Any],
 
 
 def _resolve_paths(config: Config, path: Path) -> Config:
-    from bpsflow.simulation.model_inputs import check_idf_file
+    from bpsflow.simulation.idf_syntax import check_idf_file
 
     base = path.resolve().parent
     model = config.model

@@ -14,7 +14,7 @@ numeric bounds). ``python -m bpsflow.simulation.field_limits Energy+.idd``
 writes it again from an IDD; a test compares it with the installed one.
 
 Field and type names are compared without case, spaces or punctuation, as
-everywhere in the project (:func:`bpsflow.simulation.idf.normalise`).
+everywhere in the project (:func:`normalise`, which :mod:`.idf` uses too).
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 from bpsflow.errors import BpsflowError
-from bpsflow.simulation.idf import normalise
 
 __all__ = ["Limits", "UnknownFieldError", "field_limits", "field_position", "object_fields",
            "check_value", "clip_to_limits", "known_object_types", "SUM_BELOW_ONE", "check_sums", "parse_idd"]
@@ -59,6 +58,11 @@ SUM_BELOW_ONE: dict[str, tuple[tuple[str, str], ...]] = {
          "Back Side Infrared Hemispherical Emissivity"),
     ),
 }
+
+
+def normalise(name: str) -> str:
+    """Field/type names compared without case, spaces or punctuation."""
+    return re.sub(r"[^a-z0-9]", "", name.lower())
 
 
 class UnknownFieldError(BpsflowError):

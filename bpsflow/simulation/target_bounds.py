@@ -202,20 +202,22 @@ def _check_sums(config: Config, entries: list[TargetedField], reach) -> None:
         if not pairs or not _spectral_average(obj):
             continue
         for first, second in pairs:
-            highs, names = [], []
+            highs: list[float | None] = []
+            names: list[str] = []
             for name in (first, second):
-                entry = next((e for e in targeted if normalise(e.limits.field) == normalise(name)),
-                             None)
-                if entry is not None and reach(entry) is not None:
-                    highs.append(reach(entry)[1])
-                    names.append(entry.names)
+                on_field = next((e for e in targeted
+                                 if normalise(e.limits.field) == normalise(name)), None)
+                if on_field is not None and reach(on_field) is not None:
+                    highs.append(reach(on_field)[1])
+                    names.append(on_field.names)
                 else:
                     highs.append(_nominal(obj, field_position(obj.type, name)))
-            if names and None not in highs and not highs[0] + highs[1] < 1.0:
+            a, b = highs
+            if names and a is not None and b is not None and not a + b < 1.0:
                 raise BpsflowError(
                     f"parameters ({', '.join(names)}): the design can set {obj.where} "
-                    f"'{first}' + '{second}' to {highs[0]:.6g} + {highs[1]:.6g} = "
-                    f"{highs[0] + highs[1]:.6g}, which EnergyPlus refuses (a pane cannot "
+                    f"'{first}' + '{second}' to {a:.6g} + {b:.6g} = "
+                    f"{a + b:.6g}, which EnergyPlus refuses (a pane cannot "
                     f"transmit and reflect more than what falls on it: the sum must be < 1). "
                     f"Narrow the distributions", source=config.source)
 

@@ -105,8 +105,8 @@ def _apply_target(values: FieldValues, config: Config, parameter, target: IdfTar
     try:  # a field EnergyPlus does not have is a mistake, not a field without physics
         field_position(target.object, target.field)
     except UnknownFieldError as exc:
-        key = "field" if "has no field" in str(exc) else "object"
-        raise BpsflowError(f"{where}.{key}: {exc}", source=config.source) from None
+        which = "field" if "has no field" in str(exc) else "object"
+        raise BpsflowError(f"{where}.{which}: {exc}", source=config.source) from None
     label = f"{target.object} {target.name}: {target.field}"
     if object_type not in FIELDS or chosen[0].field_index(target.field) is None:
         values.unknown.setdefault(label, []).append(parameter.name)
