@@ -67,16 +67,22 @@ def _friendly(func):
     return wrapper
 
 
-def _load(config: Path, run_dir: Path | None, **sections: dict):
-    """The validated config; ``sections`` (e.g. ``design={"samples": 5}``) are command-line
-    overrides merged over the file's sections before validation, so they meet the schema's
-    bounds like any value in the file."""
-    from bpsflow.config import load_config
+def _load(config: Path, run_dir: Path | None,
+          options: dict[str, tuple[str, object]] | None = None):
+    """Load and validate ``config``; ``options`` maps a key path to (option, value given).
 
-    overrides: dict[str, dict] = {name: values for name, values in sections.items() if values}
-    if run_dir:
-        overrides.setdefault("execution", {})["run_dir"] = str(run_dir.resolve())
-    return load_config(config, overrides or None)
+    Options that override config keys go through the schema like the file's
+    keys (:func:`bpsflow.config.with_overrides`), so a bad value is refused,
+    naming the option and the bound, before anything is written or deleted.
+    """
+    from bpsflow.config import load_config, with_overrides
+
+    overrides = {"execution": {"run_dir": str(run_dir.resolve())}} if run_dir else None
+    cfg = load_config(config, overrides)
+    if options:
+        cfg = with_overrides(cfg, {key: value for key, (_, value) in options.items()},
+                             {key: option for key, (option, _) in options.items()})
+    return cfg
 
 
 #: The resources a command holds until it ends (its run directory's lock), released by
@@ -154,12 +160,13 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
                                                   "holds results of another one; the old "
                                                   "results are moved to RUN_DIR/previous/.")) -> None:
     """Draw the design (LHS or Morris) and write samples.parquet."""
+    cfg = _load(config, run_dir, {"design.samples": ("--samples", samples),
+                                  "design.seed": ("--seed", seed)})
     from bpsflow.design_record import design_changes
+    from bpsflow.simulation.model_inputs import check_model_inputs
     from bpsflow.simulation.rundir import move_aside
 
-    overrides = {key: value for key, value in (("samples", samples), ("seed", seed))
-                 if value is not None}
-    cfg = _load(config, run_dir, design=overrides)
+    check_model_inputs(cfg)  # refuse bad model inputs before anything is moved
     drawn = _draw(cfg)  # every option is checked and the design drawn before anything moves
     rd = _lock(cfg)
     changes = design_changes(cfg, rd)
@@ -185,10 +192,13 @@ def _draw(cfg):
     """The design and the boundary sequences (or None) of ``cfg``, in memory."""
     from bpsflow.boundary import draw_sequences, period_hours
     from bpsflow.sampling import sample as draw
+    from bpsflow.simulation.target_bounds import check_sample_values
 
+    design = draw(cfg)
+    check_sample_values(cfg, design.values, "the drawn design")
     sequences = (draw_sequences(cfg.model.boundary, period_hours(cfg))
                  if cfg.model.boundary is not None else None)
-    return draw(cfg), sequences
+    return design, sequences
 
 
 def _write_drawn(cfg, drawn) -> Path:
@@ -210,6 +220,9 @@ def _write_drawn(cfg, drawn) -> Path:
 
 
 def _sample(cfg) -> Path:
+    from bpsflow.simulation.model_inputs import check_model_inputs
+
+    check_model_inputs(cfg)
     return _write_drawn(cfg, _draw(cfg))
 
 
@@ -282,11 +295,13 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     from bpsflow.sampling import SAMPLES_FILE, read_samples
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
+    from bpsflow.simulation.model_inputs import check_model_inputs
     from bpsflow.simulation.rundir import read_results
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
+    check_model_inputs(cfg)  # before config.resolved.yaml or samples are written
     rd = _lock(cfg)
     observed = _read_measured(measured, cfg, reference=plausibility_reference(rd),
                               allow_implausible=allow_implausible).frame if measured else None
@@ -367,11 +382,7 @@ def validate(config: Path = ConfigArg,
     from bpsflow.validation import note_measured, write_outputs
     from bpsflow.validation import validate as run_validation
 
-    cfg = _load(config, run_dir)
-    if q is not None:
-        if not 0 < q < 1:
-            raise BpsflowError(f"--q: expected a quantile between 0 and 1, got {q}")
-        cfg.validation.q = q
+    cfg = _load(config, run_dir, {"validation.q": ("--q", q)})
     rd = _lock(cfg)
     require_same_design(cfg, rd, "validate")
     # Everything is read and checked before anything is written: a bad file leaves the
@@ -442,12 +453,17 @@ def sensitivity(
         no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
+    from bpsflow.config import with_overrides
     from bpsflow.measured import plausibility_reference
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
     from bpsflow.simulation.rundir import read_results
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
+    # The Morris design the options ask for passes the schema (and its run cap) like a file's.
+    with_overrides(cfg, {"design.method": "morris", "design.trajectories": trajectories,
+                         "design.levels": levels},
+                   {"design.trajectories": "--trajectories", "design.levels": "--levels"})
     kind = response or ("difference" if measured else "raw")
     if kind not in morris.RESPONSE_KINDS:
         raise BpsflowError(f"--response: expected one of {', '.join(morris.RESPONSE_KINDS)}, "
@@ -605,11 +621,11 @@ def calibrate(config: Path = ConfigArg,
     from bpsflow.calibration.command import calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     settings = apply_overrides(settings_of(cfg),
                                outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
                                resolution=resolution, chains=chains, warmup=warmup,
-                               samples=samples, runs=runs)
+                               samples=samples, runs=runs, source=cfg.source)
     _lock(cfg)
     outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
                               out=out.resolve() if out else None, backend=backend, jobs=jobs,
@@ -638,7 +654,7 @@ def diagnose(config: Path = ConfigArg,
     """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
     from bpsflow.diagnosis.command import run_diagnose
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
     _lock(cfg)
     run_diagnose(cfg, measured, out.resolve() if out else None, backend=backend, jobs=jobs,
                  show_progress=not no_progress, console=console,

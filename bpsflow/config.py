@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import os
 import re
+from collections.abc import Mapping
 from datetime import date, timedelta
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -60,6 +61,19 @@ WEATHER_FIELDS = (
     "wind_speed",
     "wind_direction",
 )
+
+
+#: The largest design (LHS samples, or Morris runs ``trajectories * (k + 1)``) a run
+#: directory takes. Every instance writes one outputs file and its share of
+#: ``results.parquet`` (about 40 bytes a value, e.g. 100,000 instances × 432 hours
+#: × 2 outputs ≈ 3.5 GB, read into memory at once by ``validate`` and the figures);
+#: a larger design is a typing mistake more often than a plan.
+MAX_DESIGN_RUNS = 100_000
+#: Seeds are 32-bit non-negative integers (what numpy's legacy generators, used by
+#: SALib, accept).
+MAX_SEED = 2**32 - 1
+#: Parallel processes: a bound on a typing mistake, far above any one machine's cores.
+MAX_JOBS = 1024
 
 
 class _Strict(BaseModel):
@@ -205,9 +219,9 @@ class Boundary(_Strict):
     file: Path
     timestamp_column: str = "timestamp"
     surfaces: dict[str, BoundarySurface] = Field(min_length=1)
-    sequences: int = Field(default=400, ge=1)
+    sequences: int = Field(default=400, ge=1, le=MAX_DESIGN_RUNS)
     sensor_std_c: float = Field(default=0.05 / 3 / 3, gt=0)
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=MAX_SEED)
 
 
 class Model(_Strict):
@@ -284,15 +298,18 @@ class OutputVariable(_Strict):
 
 
 class Design(_Strict):
+    """The design: ``lhs`` with ``samples`` instances, or ``morris`` with ``trajectories``
+    of ``levels`` levels; at most :data:`MAX_DESIGN_RUNS` runs either way."""
+
     method: Literal["lhs", "morris"] = "lhs"
-    samples: int = Field(default=200, ge=2)
-    seed: int = 0
-    levels: int = Field(default=10, ge=2)
-    trajectories: int = Field(default=10, ge=2)
+    samples: int = Field(default=200, ge=2, le=MAX_DESIGN_RUNS)
+    seed: int = Field(default=0, ge=0, le=MAX_SEED)
+    levels: int = Field(default=10, ge=2, le=1000)
+    trajectories: int = Field(default=10, ge=2, le=MAX_DESIGN_RUNS // 2)
 
 
 class Execution(_Strict):
-    jobs: int | None = Field(default=None, ge=1)
+    jobs: int | None = Field(default=None, ge=1, le=MAX_JOBS)
     run_dir: Path | None = None
     keep_files: list[str] = Field(default_factory=lambda: ["eplusout.sql", "eplusout.err"])
 
@@ -350,6 +367,14 @@ class Config(_Strict):
                 if output not in self.outputs:
                     raise ValueError(f"model.tests[{i}] ({test.name}).outputs: unknown output "
                                      f"'{output}', expected one of {sorted(self.outputs)}")
+        if self.design.method == "morris":
+            stepped = sum(not isinstance(p.distribution, Constant) for p in self.parameters)
+            runs = self.design.trajectories * (stepped + 1)
+            if runs > MAX_DESIGN_RUNS:
+                raise ValueError(
+                    f"design.trajectories: {self.design.trajectories} trajectories × ({stepped} "
+                    f"+ 1) = {runs} Morris runs, more than the {MAX_DESIGN_RUNS} a run "
+                    f"directory takes")
         surfaces = self.model.boundary.surfaces if self.model.boundary else {}
         for i, parameter in enumerate(self.parameters):
             for j, target in enumerate(parameter.targets):
@@ -605,18 +630,87 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Co
     return _resolve_paths(config, path)
 
 
+def with_overrides(config: Config, overrides: Mapping[str, Any],
+                   options: Mapping[str, str] | None = None) -> Config:
+    """A copy of ``config`` with dotted keys set, validated by the schema like the file.
+
+    Command-line options that override config keys go through here, so that
+    ``--samples 0`` is refused exactly as ``design.samples: 0`` would be, before
+    anything is written or deleted.
+
+    Parameters
+    ----------
+    config : Config
+        A loaded config (not changed).
+    overrides : mapping
+        Dotted key path (``design.samples``) -> value; ``None`` values are skipped
+        (an option not given).
+    options : mapping, optional
+        Dotted key path -> the option that set it (``--samples``), for messages.
+
+    Returns
+    -------
+    Config
+        The copy, with every cross-check of the schema passed.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the option and key and the bound it breaks.
+    """
+    given = {key: value for key, value in overrides.items() if value is not None}
+    updated = config.model_copy(deep=True)
+    updated.source = config.source
+    if not given:
+        return updated
+    raw = config.model_dump(mode="python")
+    for key, value in given.items():
+        *parents, last = key.split(".")
+        node = raw
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                node[part] = {}
+            node = node[part]
+        node[last] = value
+    try:
+        checked = Config.model_validate(raw)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = _format_location(tuple(first["loc"]), raw)
+        named = {option: key for key, option in (options or {}).items() if key in given}
+        option = next((option for option, key in named.items() if where.startswith(key)), None)
+        if option is None and first["type"] == "value_error":
+            # A cross-check of the whole config: name every option given.
+            option = ", ".join(named) or None
+        message = first["msg"].removeprefix("Value error, ")
+        prefix = f"{option} ({where})" if option else where
+        raise BpsflowError(f"{prefix}: {message}", source=config.source) from None
+    for key in given:
+        *parents, last = key.split(".")
+        source, target = checked, updated
+        for part in parents:
+            source, target = getattr(source, part), getattr(target, part)
+        setattr(target, last, getattr(source, last))
+    return updated
+
+
 def _resolve_paths(config: Config, path: Path) -> Config:
+    from bpsflow.simulation.idf_syntax import check_idf_file
+
     base = path.resolve().parent
     model = config.model
     model.idf = _resolve(model.idf, base)
     if not model.idf.is_file():
         raise BpsflowError(f"model.idf: IDF file not found: {model.idf}", source=path)
+    # No command reads (or echoes) a model file that is not IDF objects of known types.
+    check_idf_file(model.idf, "model.idf")
     snippets: list[Path] = []
     for i, snippet in enumerate(model.idf_objects):
         snippet = _resolve(snippet, base)
         if not snippet.is_file():
             raise BpsflowError(f"model.idf_objects[{i}]: IDF snippet file not found: "
                                f"{snippet}", source=path)
+        check_idf_file(snippet, f"model.idf_objects[{i}]")
         if snippet not in snippets:
             snippets.append(snippet)
     model.idf_objects = snippets

@@ -35,8 +35,8 @@ from typing import IO, Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["inside", "jsonable", "read_user_text", "save_figure", "write_csv", "write_json",
-           "write_npz", "write_parquet", "write_text_atomic"]
+__all__ = ["inside", "jsonable", "read_user_text", "save_figure", "write_bytes_atomic",
+           "write_csv", "write_json", "write_npz", "write_parquet", "write_text_atomic"]
 
 
 def read_user_text(path: str | os.PathLike, what: str) -> str:
@@ -169,6 +169,11 @@ def write_text_atomic(path: str | os.PathLike, text: str, encoding: str = "utf-8
         ``path``.
     """
     return _atomic(path, lambda handle: handle.write(text.encode(encoding)))
+
+
+def write_bytes_atomic(path: str | os.PathLike, content: bytes) -> Path:
+    """Write ``content`` to ``path`` atomically (temporary file beside it, then ``os.replace``)."""
+    return _atomic(path, lambda handle: handle.write(content))
 
 
 def write_parquet(frame: pd.DataFrame, path: str | os.PathLike, **kwargs: Any) -> Path:

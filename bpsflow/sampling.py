@@ -25,8 +25,9 @@ from bpsflow.files import write_parquet
 SAMPLES_FILE = "samples.parquet"
 UNIT_DESIGN_FILE = "design_unit.parquet"
 
-# ppf(0) and ppf(1) are infinite for unbounded marginals.
-_UNIT_EPS = 1e-12
+#: How close to 0 and 1 a design's unit values come: ppf(0) and ppf(1) are infinite for
+#: unbounded marginals, so ppf(UNIT_EPS) and ppf(1 - UNIT_EPS) are the most a design draws.
+UNIT_EPS = 1e-12
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,7 @@ def latin_hypercube_unit(n_samples: int, n_parameters: int, random_state: int) -
     problem = {"num_vars": n_parameters, "names": [f"x{i}" for i in range(n_parameters)],
                "bounds": [[0.0, 1.0]] * n_parameters}
     unit = salib_latin.sample(problem, n_samples, seed=random_state)
-    return np.clip(unit, _UNIT_EPS, 1 - _UNIT_EPS)
+    return np.clip(unit, UNIT_EPS, 1 - UNIT_EPS)
 
 
 def morris_unit(parameters: list[Parameter], trajectories: int, levels: int,

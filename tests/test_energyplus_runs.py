@@ -110,7 +110,7 @@ def test_resume_skips_finished_instances(finished_run):
     pd.testing.assert_frame_equal(read_results(run_dir), before)
 
 
-def test_broken_instance_is_recorded_and_others_complete(tmp_path):
+def test_broken_instance_is_recorded_and_others_complete(tmp_path, monkeypatch):
     raw = short_raw(samples=3)
     path = write_config(tmp_path, raw)
     config = load_config(path)
@@ -120,6 +120,13 @@ def test_broken_instance_is_recorded_and_others_complete(tmp_path):
     # EnergyPlus input error in that instance only.
     samples.loc[1, "glazing_solar_transmittance"] = 1.15
     samples.reset_index().to_parquet(config.run_dir / "samples.parquet", index=False)
+    # The sample check refuses it before anything runs ...
+    refused = runner.invoke(app, ["run", str(path), "--no-progress"])
+    assert refused.exit_code == 2 and "instance 1" in " ".join(refused.output.split())
+    assert not (config.run_dir / "instances").exists()
+    # ... and an instance EnergyPlus fails for a reason no check foresees stays isolated.
+    energyplus = get_backend("energyplus")
+    monkeypatch.setattr(type(energyplus), "check_samples", lambda self, config, samples: None)
     result = runner.invoke(app, ["run", str(path), "--no-progress"])
     assert result.exit_code == 1
     assert "1 instance(s) failed" in result.output
@@ -129,7 +136,6 @@ def test_broken_instance_is_recorded_and_others_complete(tmp_path):
     assert manifest.loc[[0, 2], "status"].tolist() == ["ok", "ok"]
     assert set(read_results(config.run_dir)["instance"]) == {0, 2}
     # a second run does not retry the failure unless asked, and then runs only it
-    energyplus = get_backend("energyplus")
     summary = run_ensemble(config, samples, energyplus, jobs=1, show_progress=False)
     assert (summary.ran, summary.failed) == (0, 1)
     samples.loc[1, "glazing_solar_transmittance"] = 1.0
@@ -189,7 +195,7 @@ def test_time_step_outputs_average_to_the_hourly_values(tmp_path):
 
 
 @pytest.mark.energyplus
-def test_a_run_where_every_instance_fails_says_so_with_the_first_error(tmp_path):
+def test_a_run_where_every_instance_fails_says_so_with_the_first_error(tmp_path, monkeypatch):
     raw = short_raw(samples=2)
     path = write_config(tmp_path, raw)
     config = load_config(path)
@@ -197,6 +203,9 @@ def test_a_run_where_every_instance_fails_says_so_with_the_first_error(tmp_path)
     samples = read_samples(config.run_dir)
     samples["glazing_solar_transmittance"] = 1.15      # fatal in EnergyPlus, every instance
     samples.reset_index().to_parquet(config.run_dir / "samples.parquet", index=False)
+    # The sample check would refuse it before running; this is about failures no check foresees.
+    energyplus = get_backend("energyplus")
+    monkeypatch.setattr(type(energyplus), "check_samples", lambda self, config, samples: None)
     result = runner.invoke(app, ["run", str(path), "--no-progress"])
     assert result.exit_code == 1
     assert "all 2 instances failed" in result.output

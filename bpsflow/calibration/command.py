@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
@@ -33,8 +34,12 @@ class Outcome:
 def apply_overrides(settings: CalibrationSettings, *, outputs: list[str] | None = None,
                     resolution: str | None = None, chains: int | None = None,
                     warmup: int | None = None, samples: int | None = None,
-                    runs: int | None = None) -> CalibrationSettings:
-    """A copy of ``settings`` with command-line overrides applied (validated)."""
+                    runs: int | None = None, source: Path | None = None) -> CalibrationSettings:
+    """A copy of ``settings`` with command-line overrides applied (validated).
+
+    A bad value is a :class:`BpsflowError` naming the option, the key and the
+    bound (``source``: the config file, for the message).
+    """
     data = settings.model_dump()
     if outputs:
         data["outputs"] = outputs
@@ -47,8 +52,14 @@ def apply_overrides(settings: CalibrationSettings, *, outputs: list[str] | None 
         data["design"]["runs"] = runs
     try:
         return CalibrationSettings.model_validate(data)
-    except Exception as exc:  # pydantic's message names the option's key
-        raise BpsflowError(f"calibration option: {exc}") from None
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        key = ".".join(str(part) for part in first["loc"])
+        option = {"outputs": "--outputs", "resolution": "--resolution", "bayes.chains": "--chains",
+                  "bayes.warmup": "--warmup", "bayes.samples": "--samples",
+                  "design.runs": "--runs"}.get(key.split(".0")[0], "calibration option")
+        raise BpsflowError(f"{option} (calibration.{key}): "
+                           f"{first['msg'].removeprefix('Value error, ')}", source=source) from None
 
 
 def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",

@@ -65,7 +65,7 @@ class _Strict(BaseModel):
 class CalibrationDesign(_Strict):
     """The Latin hypercube over θ whose runs train the emulator (seed §4.3.4: 840 points)."""
 
-    runs: int = Field(default=840, ge=10)
+    runs: int = Field(default=840, ge=10, le=100_000)
     seed: int = 0
 
 
@@ -133,9 +133,9 @@ class BayesSettings(_Strict):
     posterior is their prior (reported as such).
     """
 
-    chains: int = Field(default=4, ge=1)
-    warmup: int = Field(default=500, ge=0)
-    samples: int = Field(default=1000, ge=1)
+    chains: int = Field(default=4, ge=1, le=64)
+    warmup: int = Field(default=500, ge=0, le=1_000_000)
+    samples: int = Field(default=1000, ge=1, le=1_000_000)
     target_accept: float = Field(default=0.85, gt=0, lt=1)
     max_tree_depth: int = Field(default=8, ge=1, le=15)
     dense_mass: bool = True

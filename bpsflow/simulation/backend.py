@@ -3,9 +3,13 @@
 A backend turns samples into tidy hourly (or time-step) outputs::
 
     backend.check(config)                          -> CheckReport (nothing runs)
+    backend.check_samples(config, samples)         -> None (optional; nothing runs)
     backend.simulate(config, samples, workdir)     -> Batch (tidy rows + one record each)
 
-``simulate`` never raises for one instance's failure: the instance gets a
+``check_samples``, when a backend has it, refuses samples it would write as
+field values the model does not accept (both built-in backends: the IDD
+bounds, :mod:`bpsflow.simulation.target_bounds`); the ensemble loop calls it
+before running anything. ``simulate`` never raises for one instance's failure: the instance gets a
 ``failed`` record with its error excerpt and no rows. It raises
 :class:`~bpsflow.errors.BpsflowError` only for a problem every instance would
 share (a bad config, a model the backend cannot represent).

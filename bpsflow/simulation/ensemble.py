@@ -140,6 +140,9 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
         samples = samples.set_index("instance")
     samples.index = samples.index.astype(int)
     backend.check(config)
+    check_samples = getattr(backend, "check_samples", None)  # optional (see Backend)
+    if check_samples is not None:
+        check_samples(config, samples)
     executor = executor or local_executor(jobs or config.execution.jobs)
     wanted = [int(i) for i in samples.index]
     with rundir.RunLock(run_dir):

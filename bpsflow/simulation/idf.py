@@ -18,13 +18,13 @@ directory, where the relative name would not resolve).
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.field_limits import normalise
 
 if TYPE_CHECKING:
     from bpsflow.config import Model
@@ -126,11 +126,6 @@ FIELDS: dict[str, tuple[str, ...]] = {
 
 #: Types whose objects have no name field (a target's ``name`` must be ``*``).
 UNNAMED = {"SITE:GROUNDREFLECTANCE", "SHADOWCALCULATION"}
-
-
-def normalise(name: str) -> str:
-    """Field/type names compared without case, spaces or punctuation."""
-    return re.sub(r"[^a-z0-9]", "", name.lower())
 
 
 @dataclass

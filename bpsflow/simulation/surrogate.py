@@ -11,7 +11,9 @@ import pandas as pd
 
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.backend import Batch, CheckReport
+from bpsflow.simulation.model_inputs import check_model_inputs
 from bpsflow.simulation.rundir import RESULT_COLUMNS, InstanceRecord
+from bpsflow.simulation.target_bounds import check_sample_values
 from bpsflow.surrogate.run import ignored_targets, simulate_instances
 from bpsflow.surrogate.support import unsupported_features
 
@@ -32,6 +34,7 @@ class SurrogateBackend:
         return unsupported_features(config)
 
     def check(self, config: Config) -> CheckReport:
+        check_model_inputs(config)
         lacking = unsupported_features(config)
         if lacking:
             raise BpsflowError("the surrogate cannot represent this model: " + "; ".join(lacking)
@@ -48,6 +51,10 @@ class SurrogateBackend:
             boundary_targets=sum(isinstance(t, BoundaryTarget) for t in targets),
             notes=[f"the surrogate has no physics for {len(ignored)} targeted field(s): "
                    + "; ".join(ignored)] if ignored else [])
+
+    def check_samples(self, config: Config, samples: pd.DataFrame) -> None:
+        """Refuse samples that set a field outside the IDD's bounds (before anything runs)."""
+        check_sample_values(config, samples)
 
     def simulate(self, config: Config, samples: pd.DataFrame, workdir: Path, *,
                  keep_inputs: bool = False) -> Batch:

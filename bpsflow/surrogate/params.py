@@ -17,6 +17,7 @@ import pandas as pd
 
 from bpsflow.config import BoundaryTarget, Config, IdfTarget, WeatherTarget
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.field_limits import UnknownFieldError, field_position
 from bpsflow.simulation.idf import FIELDS, UNNAMED, IdfModel, describe_model, normalise
 from bpsflow.simulation.targets import apply_mode, select_objects
 
@@ -101,6 +102,11 @@ def _apply_target(values: FieldValues, config: Config, parameter, target: IdfTar
                                f"{describe_model(config.model)} (objects of that type: "
                                f"{names})",
                                source=config.source)
+    try:  # a field EnergyPlus does not have is a mistake, not a field without physics
+        field_position(target.object, target.field)
+    except UnknownFieldError as exc:
+        which = "field" if "has no field" in str(exc) else "object"
+        raise BpsflowError(f"{where}.{which}: {exc}", source=config.source) from None
     label = f"{target.object} {target.name}: {target.field}"
     if object_type not in FIELDS or chosen[0].field_index(target.field) is None:
         values.unknown.setdefault(label, []).append(parameter.name)

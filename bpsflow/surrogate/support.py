@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import FIELDS, model_objects
+from bpsflow.simulation.target_bounds import check_target_fields
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -46,6 +47,8 @@ def unsupported_features(config: Config) -> list[str]:
         One phrase per feature (empty when the surrogate can run the model).
     """
     idf = model_objects(config.model)
+    # A target EnergyPlus has no field for is the config's mistake, whatever the backend.
+    check_target_fields(config)
     lacking: list[str] = []
     zones = [o.name for o in idf.of_type("ZONE")]
     if len(zones) != 1:

@@ -26,7 +26,9 @@ from bpsflow.simulation.energyplus.engine import (
     run_energyplus,
 )
 from bpsflow.simulation.energyplus.instances import check_model, write_instance
+from bpsflow.simulation.model_inputs import check_model_inputs
 from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, RESULT_COLUMNS, InstanceRecord, instance_dir
+from bpsflow.simulation.target_bounds import check_sample_values
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -143,12 +145,17 @@ class EnergyPlusBackend:
         return []
 
     def check(self, config: Config) -> CheckReport:
+        check_model_inputs(config)
         template = check_model(config, idd_path(self.binary(config)))
         targets = template.targets
         return CheckReport(
             backend=self.name, idf_fields=sum(len(v) for v in targets.idf_fields.values()),
             weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
             controlled_zones=sorted(template.thermostats.zones))
+
+    def check_samples(self, config: Config, samples: pd.DataFrame) -> None:
+        """Refuse samples that set a field outside the IDD's bounds (before anything runs)."""
+        check_sample_values(config, samples)
 
     def simulate(self, config: Config, samples: pd.DataFrame, workdir: Path, *,
                  keep_inputs: bool = False) -> Batch:

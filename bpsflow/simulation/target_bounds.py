@@ -1,0 +1,315 @@
+"""Whether the values the parameters give their IDF fields are values EnergyPlus accepts.
+
+Checked the same on every backend, before anything runs:
+
+- :func:`check_target_fields` — every IDF target names an object type and a
+  field the EnergyPlus IDD defines (a misspelt field is an error, never a
+  field silently left alone);
+- :func:`check_distribution_support` (``bpsflow check``, and every command
+  that runs instances) — the whole range each parameter's distribution can
+  draw, combined with the model's nominal value by its ``mode``, stays within
+  the IDD bounds of every field it targets (:mod:`.field_limits`), and a
+  glazing pane's transmittance and reflectance cannot sum to 1 or more;
+- :func:`check_sample_values` (``bpsflow sample`` and ``run``) — the same for
+  the drawn samples, naming the first offending instance.
+
+The range a distribution "can draw" is its inverse CDF at the design's
+extreme unit values (:data:`bpsflow.sampling.UNIT_EPS` from 0 and 1), exactly
+what a Latin hypercube can reach, so a config ``check`` passes never draws a
+refused sample. Several parameters on one field combine in config order, as
+:func:`bpsflow.simulation.targets.apply_mode` writes them, by interval
+arithmetic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from bpsflow.errors import BpsflowError
+from bpsflow.simulation.field_limits import (
+    SUM_BELOW_ONE,
+    Limits,
+    UnknownFieldError,
+    check_value,
+    field_limits,
+    field_position,
+)
+from bpsflow.simulation.idf import IdfObject, model_objects, normalise
+from bpsflow.simulation.targets import apply_mode, select_objects
+
+if TYPE_CHECKING:
+    from bpsflow.config import Config, Parameter
+
+__all__ = ["TargetedField", "targeted_fields", "check_target_fields",
+           "check_distribution_support", "check_sample_values"]
+
+
+@dataclass
+class TargetedField:
+    """One field of one model object that parameters set, with its IDD limits.
+
+    ``nominal`` is the model's value (``None`` when the field is blank or not
+    a number); ``parameters`` are the parameters on it, in config order.
+    """
+
+    obj: IdfObject
+    position: int
+    limits: Limits
+    nominal: float | None
+    parameters: list[Parameter] = field(default_factory=list)
+
+    @property
+    def where(self) -> str:
+        return f"{self.obj.where} field '{self.limits.field}'"
+
+    @property
+    def names(self) -> str:
+        return ", ".join(p.name for p in self.parameters)
+
+
+def _nominal(obj: IdfObject, position: int) -> float | None:
+    text = obj.fields[position].strip() if position < len(obj.fields) else ""
+    try:
+        return float(text)
+    except ValueError:
+        return None  # blank (the IDD default), autosize, autocalculate
+
+
+def targeted_fields(config: Config) -> list[TargetedField]:
+    """Every model field the config's parameters set, each once, with its parameters.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the parameter and target when its object type or field is not
+        in the EnergyPlus IDD.
+    """
+    from bpsflow.config import IdfTarget
+
+    objects = model_objects(config.model)
+    found: dict[tuple[int, int], TargetedField] = {}
+    for i, parameter in enumerate(config.parameters):
+        for j, target in enumerate(parameter.targets):
+            if not isinstance(target, IdfTarget):
+                continue
+            where = f"parameters[{i}] ({parameter.name}).targets[{j}]"
+            try:
+                position = field_position(target.object, target.field)
+            except UnknownFieldError as exc:
+                key = "field" if "has no field" in str(exc) else "object"
+                raise BpsflowError(f"{where}.{key}: {exc}", source=config.source) from None
+            limits = field_limits(target.object, target.field)
+            of_type = [(k, o) for k, o in enumerate(objects.objects)
+                       if normalise(o.type) == normalise(target.object)]
+            for k, obj in select_objects(of_type, target.name, lambda pair: pair[1].name):
+                entry = found.setdefault((k, position), TargetedField(
+                    obj=obj, position=position, limits=limits, nominal=_nominal(obj, position)))
+                if all(p is not parameter for p in entry.parameters):
+                    entry.parameters.append(parameter)
+    return list(found.values())
+
+
+def check_target_fields(config: Config) -> list[TargetedField]:
+    """Check that every IDF target is a field of the IDD (see :func:`targeted_fields`)."""
+    return targeted_fields(config)
+
+
+def _reach(parameter: Parameter) -> tuple[float, float]:
+    """The lowest and highest value the design can draw from a parameter's distribution."""
+    from bpsflow.sampling import UNIT_EPS
+
+    ends = parameter.distribution.ppf(np.array([UNIT_EPS, 1.0 - UNIT_EPS], dtype=float))
+    return float(np.min(ends)), float(np.max(ends))
+
+
+def _combine(mode: str, low: float, high: float, a: float, b: float) -> tuple[float, float]:
+    if mode == "absolute":
+        return a, b
+    if mode == "additive":
+        return low + a, high + b
+    corners = [low * a, low * b, high * a, high * b]
+    return min(corners), max(corners)
+
+
+def _interval(entry: TargetedField) -> tuple[float, float] | None:
+    """The range of values the field can take over the design (``None``: no number to check)."""
+    low = high = entry.nominal
+    for parameter in entry.parameters:
+        a, b = _reach(parameter)
+        if low is None or high is None:
+            if parameter.mode != "absolute":
+                return None  # the backends refuse a relative change of a blank field
+            low, high = a, b
+            continue
+        low, high = _combine(parameter.mode, low, high, a, b)
+    if low is None or high is None:
+        return None
+    return low, high
+
+
+def _how(entry: TargetedField) -> str:
+    parts = [f"{p.name} ({p.mode}, {p.distribution.type})" for p in entry.parameters]
+    base = f"nominal {entry.nominal:g}" if entry.nominal is not None else "no nominal value"
+    return f"{' then '.join(parts)} on the model's {base}"
+
+
+def check_distribution_support(config: Config) -> None:
+    """Refuse a parameter whose distribution can give a field a value EnergyPlus rejects.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the parameter(s), the object and field, the IDD bound and the
+        offending end of the range (or the glazing sum that reaches 1).
+    """
+    entries = targeted_fields(config)
+    ranges: dict[tuple[int, int], tuple[float, float]] = {}
+    for entry in entries:
+        reach = _interval(entry)
+        if reach is None:
+            continue
+        ranges[(id(entry.obj), entry.position)] = reach
+        for end in reach:
+            problem = check_value(entry.limits, end)
+            if problem:
+                raise BpsflowError(
+                    f"parameters ({entry.names}): the design can set {entry.where} to "
+                    f"{end:.6g} ({_how(entry)} ranges over {reach[0]:.6g}..{reach[1]:.6g}), "
+                    f"which EnergyPlus refuses: the IDD requires {entry.limits.describe()} "
+                    f"({problem}). Narrow the distribution (lower/upper) or change the mode",
+                    source=config.source)
+    _check_sums(config, entries, lambda entry: ranges.get((id(entry.obj), entry.position)))
+
+
+def _spectral_average(obj: IdfObject) -> bool:
+    """Whether a glazing's optical data are the spectral averages its T and R fields give."""
+    kind = obj.fields[1].strip().upper() if len(obj.fields) > 1 else ""
+    return kind in ("", "SPECTRALAVERAGE")
+
+
+def _check_sums(config: Config, entries: list[TargetedField], reach) -> None:
+    """Glazing T + R (or T + emissivity) must stay below 1 over each field's range."""
+    by_object: dict[int, list[TargetedField]] = {}
+    for entry in entries:
+        by_object.setdefault(id(entry.obj), []).append(entry)
+    for targeted in by_object.values():
+        obj = targeted[0].obj
+        pairs = SUM_BELOW_ONE.get(obj.type, ())
+        if not pairs or not _spectral_average(obj):
+            continue
+        for first, second in pairs:
+            highs: list[float | None] = []
+            names: list[str] = []
+            for name in (first, second):
+                on_field = next((e for e in targeted
+                                 if normalise(e.limits.field) == normalise(name)), None)
+                if on_field is not None and reach(on_field) is not None:
+                    highs.append(reach(on_field)[1])
+                    names.append(on_field.names)
+                else:
+                    highs.append(_nominal(obj, field_position(obj.type, name)))
+            a, b = highs
+            if names and a is not None and b is not None and not a + b < 1.0:
+                raise BpsflowError(
+                    f"parameters ({', '.join(names)}): the design can set {obj.where} "
+                    f"'{first}' + '{second}' to {a:.6g} + {b:.6g} = "
+                    f"{a + b:.6g}, which EnergyPlus refuses (a pane cannot "
+                    f"transmit and reflect more than what falls on it: the sum must be < 1). "
+                    f"Narrow the distributions", source=config.source)
+
+
+def field_samples(config: Config, entry: TargetedField, samples: pd.DataFrame
+                  ) -> np.ndarray | None:
+    """The field's value per sample (rows of ``samples``), as the backends write it."""
+    values: np.ndarray | None = None if entry.nominal is None else \
+        np.full(len(samples), entry.nominal)
+    for parameter in entry.parameters:
+        if parameter.name in samples.columns:
+            column = samples[parameter.name].to_numpy(dtype=float)
+        else:  # the backends hold a parameter missing from the samples at its nominal value
+            column = np.full(len(samples), float(parameter.distribution.nominal))
+        if values is None:
+            if parameter.mode != "absolute":
+                return None
+            values = column
+        else:
+            values = np.asarray(apply_mode(parameter.mode, values, column), dtype=float)  # type: ignore[arg-type]
+    return values
+
+
+def check_sample_values(config: Config, samples: pd.DataFrame, where: str = "samples") -> None:
+    """Refuse drawn samples that give a field a value EnergyPlus rejects, naming the first.
+
+    Parameters
+    ----------
+    config : Config
+    samples : DataFrame
+        Indexed by instance, one column per parameter.
+    where : str
+        What the samples are, for the message (``samples.parquet``).
+
+    Raises
+    ------
+    BpsflowError
+        Naming the instance, the parameter(s), the value, the field and the bound.
+    """
+    if "instance" in samples.columns:
+        samples = samples.set_index("instance")
+    entries = targeted_fields(config)
+    per_field: dict[tuple[int, int], np.ndarray] = {}
+    for entry in entries:
+        values = field_samples(config, entry, samples)
+        if values is None:
+            continue
+        per_field[(id(entry.obj), entry.position)] = values
+        low, high = entry.limits.minimum, entry.limits.maximum
+        bad = ~np.isfinite(values)
+        if low is not None:
+            bad |= values <= low if entry.limits.minimum_exclusive else values < low
+        if high is not None:
+            bad |= values >= high if entry.limits.maximum_exclusive else values > high
+        if bad.any():
+            row = int(np.argmax(bad))
+            value = float(values[row])
+            drawn = ", ".join(f"{p.name} = {float(samples[p.name].iloc[row]):.6g}"
+                              for p in entry.parameters if p.name in samples.columns)
+            raise BpsflowError(
+                f"{where}: instance {samples.index[row]} ({drawn}; {int(bad.sum())} of "
+                f"{len(values)} instances alike) sets {entry.where} to {value:.6g}, which "
+                f"EnergyPlus refuses: the IDD requires {entry.limits.describe()} "
+                f"({check_value(entry.limits, value)})", source=config.source)
+    by_object: dict[int, list[TargetedField]] = {}
+    for entry in entries:
+        by_object.setdefault(id(entry.obj), []).append(entry)
+    for targeted in by_object.values():
+        obj = targeted[0].obj
+        if obj.type not in SUM_BELOW_ONE or not _spectral_average(obj):
+            continue
+        for first, second in SUM_BELOW_ONE[obj.type]:
+            columns, names = [], []
+            for name in (first, second):
+                position = field_position(obj.type, name)
+                if (id(obj), position) in per_field:
+                    columns.append(per_field[(id(obj), position)])
+                    names += [p.name for e in targeted if e.position == position
+                              for p in e.parameters]
+                else:
+                    nominal = _nominal(obj, position)
+                    columns.append(np.full(len(samples), np.nan if nominal is None else nominal))
+            if not names:
+                continue
+            total = columns[0] + columns[1]
+            bad = total >= 1.0
+            if bad.any():
+                row = int(np.argmax(bad))
+                drawn = ", ".join(f"{name} = {float(samples[name].iloc[row]):.6g}"
+                                  for name in dict.fromkeys(names) if name in samples.columns)
+                raise BpsflowError(
+                    f"{where}: instance {samples.index[row]} ({drawn}) sets {obj.where} "
+                    f"'{first}' + '{second}' to {columns[0][row]:.6g} + {columns[1][row]:.6g} = "
+                    f"{total[row]:.6g}, which EnergyPlus refuses (the sum must be < 1; "
+                    f"{int(bad.sum())} of {len(total)} instances alike)", source=config.source)
