@@ -127,6 +127,7 @@ def _koh(emulator, observed: np.ndarray, obs_rows: np.ndarray, settings: BayesSe
     return data, y, posterior
 
 
+@pytest.mark.slow
 def test_posterior_concentrates_on_theta_and_discrepancy_recovers_the_bias():
     x, unit, emulator = toy_emulator(k=1, runs=40, rows=16)
     truth, bias = 0.3, 0.25
