@@ -170,8 +170,9 @@ class Test(_Strict):
     name: SafeName
     period: str
     start: str
-    days: int = Field(default=6, ge=1)
-    warmup_days: int = Field(default=3, ge=0)
+    # A test lies within one simulated year (plus its warm-up).
+    days: int = Field(default=6, ge=1, le=366)
+    warmup_days: int = Field(default=3, ge=0, le=365)
     mode: Literal["heating", "cooling", "free_floating"]
     # A thermostat setpoint outside [-50, 100] °C is a unit or typing mistake.
     setpoint_c: float | None = Field(default=None, ge=-50.0, le=100.0)
@@ -244,7 +245,7 @@ class Model(_Strict):
     weather: Path
     energyplus: Path | None = None
     year: int = 2025
-    timesteps_per_hour: int = Field(default=6, ge=1, le=60)
+    timesteps_per_hour: Literal[1, 2, 3, 4, 5, 6, 10, 12, 15, 20, 30, 60] = 6
     periods: list[Period] = Field(min_length=1)
     tests: list[Test] = Field(min_length=1)
     boundary: Boundary | None = None
@@ -506,11 +507,41 @@ def resolve_weather(path: Path, base: Path) -> Path:
         + (f" and in {bundled}" if bundled else "") + "); expected an EPW file")
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """The safe loader, refusing a key repeated in one mapping (YAML would keep the last)."""
+
+
+def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: set = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"key {key!r} appears twice in one mapping (the second would "
+                            f"silently replace the first)", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
+def parse_yaml(text: str) -> Any:
+    """Parse YAML safely (no ``!!python`` tags), refusing repeated keys.
+
+    Raises
+    ------
+    yaml.YAMLError
+        With the line and column of the problem.
+    """
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def _read_yaml(path: Path) -> dict:
     if not path.is_file():
         raise BpsflowError(f"config file not found: {path}")
     try:
-        raw = yaml.safe_load(read_user_text(path, "a YAML config"))
+        raw = parse_yaml(read_user_text(path, "a YAML config"))
     except yaml.YAMLError as exc:
         raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
     if not isinstance(raw, dict):

@@ -339,8 +339,7 @@ def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Pat
     if not aware.any():
         parsed = parsed.dt.tz_localize(None)
         if parsed.isna().any():
-            # Not ISO 8601 (e.g. 12/05/2025 01:00): let pandas infer each stamp.
-            parsed = pd.to_datetime(series, format="mixed", errors="coerce")
+            parsed = _parse_local_format(series, lines, path, notes)
     bad = np.flatnonzero(parsed.isna().to_numpy())
     if len(bad):
         raise BpsflowError(f"column '{TIMESTAMP_COLUMN}', line {lines[bad[0]]}: "
@@ -357,6 +356,34 @@ def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Pat
                  f"model's local standard time (UTC{_format_offset(hours)}, the weather "
                  f"file's time zone){dst}")
     return pd.DatetimeIndex(local)
+
+
+def _parse_local_format(series: pd.Series, lines: np.ndarray, path: Path,
+                        notes: list[str]) -> pd.Series:
+    """Stamps not in ISO 8601 (e.g. ``12/05/2025 01:00``), read with ONE format for every row.
+
+    The format is inferred from the first stamp, once month-first and once
+    day-first. When both read every row but disagree, the file is ambiguous
+    and refused: guessing row by row would read 05/12 as May and 13/12 as
+    December in one column.
+    """
+    import warnings
+
+    readings = {}
+    for dayfirst in (False, True):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            readings[dayfirst] = pd.to_datetime(series, dayfirst=dayfirst, errors="coerce")
+    complete = [dayfirst for dayfirst, parsed in readings.items() if not parsed.isna().any()]
+    if len(complete) == 2 and not readings[False].equals(readings[True]):
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}', line {lines[0]}: '{series.iloc[0]}' "
+                           f"reads as day/month and as month/day; write stamps as ISO 8601 "
+                           f"(2025-12-05 01:00:00)", source=path)
+    if not complete:
+        return readings[False]
+    order = "day/month" if complete == [True] else "month/day"
+    notes.append(f"{path.name}: timestamps are not ISO 8601; read as {order} for every row")
+    return readings[complete[0]]
 
 
 def model_utc_offset(config: Config, source: Path) -> float:

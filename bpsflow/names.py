@@ -20,6 +20,9 @@ from pydantic import AfterValidator
 #: The rule (a whole-string match: no trailing newline slips through ``$``).
 NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]*")
 
+#: Two names joined in one file name (``band_<test>_<output>.png``) stay under 255 bytes.
+MAX_LENGTH = 100
+
 RULE = ("expected letters, digits, '_', '-' or '.', starting with a letter or '_' "
         "(it names files)")
 
@@ -43,6 +46,9 @@ def check_name(name: str) -> str:
     """
     if not NAME_PATTERN.fullmatch(name):
         raise ValueError(f"name {name!r}: {RULE}")
+    if len(name) > MAX_LENGTH:
+        raise ValueError(f"name {name[:20]!r}... has {len(name)} characters: at most {MAX_LENGTH} "
+                         f"(file names join two names and must stay under the file system's 255)")
     return name
 
 

@@ -23,9 +23,10 @@ import pandas as pd
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from bpsflow.config import Config, _format_location
+from bpsflow.config import Config, _format_location, parse_yaml
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_user_text, write_csv, write_json
+from bpsflow.simulation.target_bounds import check_sample_values
 
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
@@ -52,7 +53,7 @@ class Truth(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     values: dict[str, float] = Field(default_factory=dict)
     noise: dict[str, Noise] = Field(default_factory=dict)
-    seed: int = 0
+    seed: int = Field(default=0, ge=0, le=2**32 - 1)
 
 
 def default_noise(unit: str) -> Noise:
@@ -68,7 +69,7 @@ def load_truth(path: Path, config: Config) -> Truth:
     if not path.is_file():
         raise BpsflowError(f"truth file not found: {path}")
     try:
-        raw = yaml.safe_load(read_user_text(path, "a YAML truth file")) or {}
+        raw = parse_yaml(read_user_text(path, "a YAML truth file")) or {}
         truth = Truth.model_validate(raw)
     except yaml.YAMLError as exc:
         raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
@@ -188,6 +189,9 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
         full.model.backend = backend
     simulator = choose_backend(full, console.print)
     frame = pd.DataFrame([sample], index=pd.Index([0], name="instance"))
+    # A true value outside what EnergyPlus accepts (a reflectance of 5) is refused, as for
+    # any drawn sample, rather than simulated silently.
+    check_sample_values(full, frame, "the truth values")
     try:
         # The truth draws from the run directory's boundary sequences, like its ensemble.
         outputs = simulate_samples(full, frame, out_dir / "simulation", simulator,

@@ -53,3 +53,42 @@ def test_a_non_finite_truth_value_names_the_key(tmp_path):
     assert_clean_error(invoke("synth", config, "--truth", truth), str(truth), f"values.{name}",
                        "finite number")
     assert not (tmp_path / "run" / "truth").exists()
+
+
+def test_a_repeated_yaml_key_is_refused_naming_it(tmp_path):
+    config = write_config(tmp_path, _surrogate_raw())
+    config.write_text(config.read_text() + "design:\n  method: lhs\n  samples: 7\n")
+    assert_clean_error(invoke("check", config), str(config), "'design' appears twice")
+
+
+def test_a_test_longer_than_a_year_is_refused_before_dates_overflow(tmp_path):
+    raw = _surrogate_raw()
+    raw["model"]["tests"][0]["days"] = 1_000_000_000
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)), "model.tests[0] (H-ST).days")
+
+
+def test_a_name_too_long_for_a_file_name_is_refused_by_check(tmp_path):
+    raw = _surrogate_raw()
+    raw["model"]["tests"][0]["name"] = "a" * 300
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)), "model.tests[0]",
+                       "at most 100")
+
+
+def test_timesteps_per_hour_must_divide_the_hour(tmp_path):
+    raw = _surrogate_raw()
+    raw["model"]["timesteps_per_hour"] = 7
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)), "model.timesteps_per_hour")
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("seed: -5\n", "seed"),
+    ("values:\n  ground_reflectance: 5.0\n", "ground_reflectance"),
+])
+def test_a_truth_outside_its_range_is_refused_before_anything_is_written(tmp_path, content,
+                                                                         needle):
+    config = write_config(tmp_path, _surrogate_raw())
+    truth = tmp_path / "truth.yaml"
+    truth.write_text(content)
+    assert_clean_error(invoke("synth", config, "--truth", truth, "--out", tmp_path / "out"),
+                       needle)
+    assert not (tmp_path / "out" / "measured.csv").exists()

@@ -492,3 +492,20 @@ def test_notes_are_printed_by_every_command(case):
                     "--no-progress")
     assert "15-min data aggregated to hourly" in " ".join(assert_ok(result).split())
     assert "Traceback" not in all_text(result)
+
+
+def test_slash_dates_are_read_with_one_format_or_refused_as_ambiguous(case):
+    hourly = case.hourly.copy()
+    original = hourly.index
+    hourly.index = original.strftime("%d/%m/%Y %H:%M")
+    # Every day of the window is 12 or less: day/month and month/day both read every row.
+    _fails_cleanly(case, case.write(hourly, "ambiguous.csv"), "ISO 8601", "line 2")
+    # One stamp past the 12th (outside the test windows) settles it as day/month.
+    extra = hourly.iloc[[0]].copy()
+    extra.index = pd.Index(["13/12/2025 01:00"])
+    result = case.validate(case.write(pd.concat([hourly, extra]), "daymonth.csv"))
+    text = assert_ok(result)
+    assert "read as day/month" in " ".join(text.split())
+    day_month = _metrics(case)
+    assert_ok(case.validate(case.write(case.hourly, "iso.csv")))
+    _assert_same_metrics(_metrics(case), day_month)
