@@ -220,9 +220,7 @@ def _write_drawn(cfg, drawn) -> Path:
 
 
 def _sample(cfg) -> Path:
-    from bpsflow.simulation.model_inputs import check_model_inputs
-
-    check_model_inputs(cfg)
+    """Draw and write the design of ``cfg`` (its model inputs already checked by the caller)."""
     return _write_drawn(cfg, _draw(cfg))
 
 

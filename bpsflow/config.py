@@ -649,16 +649,22 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Co
     try:
         config = Config.model_validate(raw)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = _format_location(tuple(first["loc"]), raw)
-        message = first["msg"].removeprefix("Value error, ")
-        if first["type"] == "extra_forbidden":
-            message = "unknown key"
-        elif first["type"] == "missing":
-            message = "required key is missing"
+        first, where, message = _first_problem(exc, raw)
         extra = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
         raise BpsflowError(f"{where}: {message}{extra}", source=path) from None
     return _resolve_paths(config, path)
+
+
+def _first_problem(exc: ValidationError, raw: dict) -> tuple[Any, str, str]:
+    """The first schema error, its key path (with names) and its message in the config's words."""
+    first = exc.errors()[0]
+    where = _format_location(tuple(first["loc"]), raw)
+    message = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        message = "unknown key"
+    elif first["type"] == "missing":
+        message = "required key is missing"
+    return first, where, message
 
 
 def with_overrides(config: Config, overrides: Mapping[str, Any],
@@ -706,14 +712,12 @@ def with_overrides(config: Config, overrides: Mapping[str, Any],
     try:
         checked = Config.model_validate(raw)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = _format_location(tuple(first["loc"]), raw)
+        first, where, message = _first_problem(exc, raw)
         named = {option: key for key, option in (options or {}).items() if key in given}
         option = next((option for option, key in named.items() if where.startswith(key)), None)
         if option is None and first["type"] == "value_error":
             # A cross-check of the whole config: name every option given.
             option = ", ".join(named) or None
-        message = first["msg"].removeprefix("Value error, ")
         prefix = f"{option} ({where})" if option else where
         raise BpsflowError(f"{prefix}: {message}", source=config.source) from None
     for key in given:

@@ -88,7 +88,7 @@ def case(finished, tmp_path) -> Case:
     return Case(config=finished / "case.yaml", run_dir=run_dir, hourly=hourly, folder=tmp_path)
 
 
-def _fails_cleanly(case: Case, measured: Path, *needles: str, command: str = "validate",
+def _assert_fails_cleanly(case: Case, measured: Path, *needles: str, command: str = "validate",
                    extra: tuple = ()) -> str:
     """``command`` on ``measured`` exits 2 naming the file and needles; the run dir is intact."""
     before = snapshot(case.run_dir)
@@ -124,7 +124,7 @@ def _assert_same_metrics(a: dict, b: dict, rel: float = 1e-9) -> None:
 def test_text_in_a_value_column(case):
     lines = case.csv_lines()
     lines[30] = lines[30].rsplit(",", 1)[0] + ",warm"
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{AIR}'", "line 31",
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{AIR}'", "line 31",
                    "'warm' is not a number")
 
 
@@ -135,7 +135,7 @@ def test_non_finite_text_is_an_error_and_keeps_the_previous_validation(case, tok
     fields = lines[40].split(",")
     fields[header.index(HEATING)] = token
     lines[40] = ",".join(fields)
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{HEATING}'", "line 41",
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{HEATING}'", "line 41",
                    "not a finite number")
 
 
@@ -158,11 +158,11 @@ def test_ambiguous_or_decimal_comma_is_an_error(case):
     fields = lines[10].split(",")
     fields[header.index(HEATING)] = '"1,234"'
     lines[10] = ",".join(fields)
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{HEATING}'", "line 11",
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{HEATING}'", "line 11",
                    "ambiguous")
     fields[header.index(HEATING)] = '"27,5"'
     lines[10] = ",".join(fields)
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n", "comma.csv"), "line 11",
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n", "comma.csv"), "line 11",
                    "decimal comma")
 
 
@@ -171,33 +171,33 @@ def test_ambiguous_or_decimal_comma_is_an_error(case):
 
 
 def test_empty_file(case):
-    _fails_cleanly(case, case.text(""), "empty")
+    _assert_fails_cleanly(case, case.text(""), "empty")
 
 
 def test_header_only_file(case):
-    _fails_cleanly(case, case.text(case.csv_lines()[0] + "\n"), "no data rows")
+    _assert_fails_cleanly(case, case.text(case.csv_lines()[0] + "\n"), "no data rows")
 
 
 def test_random_bytes(case):
     data = np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes()
-    _fails_cleanly(case, case.text(data, "random.csv"), "line")
+    _assert_fails_cleanly(case, case.text(data, "random.csv"), "line")
 
 
 def test_gzip_file(case):
     packed = gzip.compress("\n".join(case.csv_lines()).encode())
-    _fails_cleanly(case, case.text(packed, "measured.csv.gz"), "gzip")
+    _assert_fails_cleanly(case, case.text(packed, "measured.csv.gz"), "gzip")
 
 
 def test_missing_and_misspelled_output_columns(case):
-    _fails_cleanly(case, case.write(case.hourly.drop(columns=[AIR])), f"no column '{AIR}'")
+    _assert_fails_cleanly(case, case.write(case.hourly.drop(columns=[AIR])), f"no column '{AIR}'")
     renamed = case.hourly.rename(columns={HEATING: "heating_power_W"})
-    _fails_cleanly(case, case.write(renamed, "typo.csv"), f"no column '{HEATING}'",
+    _assert_fails_cleanly(case, case.write(renamed, "typo.csv"), f"no column '{HEATING}'",
                    "'heating_power_W' looks like 'heating_power_w'")
 
 
 def test_no_timestamp_column(case):
     renamed = case.hourly.reset_index().rename(columns={"timestamp": "time"})
-    _fails_cleanly(case, case.text(renamed.to_csv(index=False), "nostamp.csv"),
+    _assert_fails_cleanly(case, case.text(renamed.to_csv(index=False), "nostamp.csv"),
                    "no 'timestamp' column", "time")
 
 
@@ -208,13 +208,13 @@ def test_no_timestamp_column(case):
 def test_bad_timestamp_names_the_line(case):
     lines = case.csv_lines()
     lines[5] = "yesterday," + lines[5].split(",", 1)[1]
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 6", "'yesterday'")
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 6", "'yesterday'")
 
 
 def test_duplicate_stamp_names_both_lines(case):
     lines = case.csv_lines()
     lines.insert(11, lines[10])
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 12", "repeats line 11")
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 12", "repeats line 11")
 
 
 def test_unsorted_stamps_are_sorted_and_stated(case):
@@ -249,7 +249,7 @@ def test_mixing_stamps_with_and_without_offset_is_an_error(case):
     lines = case.csv_lines()
     stamp, rest = lines[7].split(",", 1)
     lines[7] = stamp.replace(" ", "T") + "+01:00," + rest
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 8", "UTC offset")
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 8", "UTC offset")
 
 
 def test_offset_stamps_without_a_model_time_zone_are_refused(case, tmp_path):
@@ -282,7 +282,7 @@ def test_rows_outside_the_test_windows(case):
         text.split())
     other_year = case.hourly.copy()
     other_year.index = other_year.index - pd.DateOffset(years=4)
-    _fails_cleanly(case, case.write(other_year, "2021.csv"), "no row falls in any test window",
+    _assert_fails_cleanly(case, case.write(other_year, "2021.csv"), "no row falls in any test window",
                    "2021-12-05 01:00:00", "2021-12-09 00:00:00", "H-ST: 2025-12-05 00:00:00")
 
 
@@ -335,7 +335,7 @@ def test_incomplete_hours_are_left_out_and_stated(case):
     assert "left out, not averaged from fewer values" in " ".join(text.split())
     assert "2025-12-05 06:00:00" in text
     evaluated = pd.Timestamp("2025-12-06 10:30")
-    text = _fails_cleanly(case, case.write(quarter.drop(evaluated), "gap2.csv"),
+    text = _assert_fails_cleanly(case, case.write(quarter.drop(evaluated), "gap2.csv"),
                           "lacks 1 of the 24 evaluated hours", "2025-12-06 11:00:00")
     assert "not averaged from fewer values" in " ".join(text.split())
 
@@ -345,7 +345,7 @@ def test_steps_that_cannot_be_aggregated(case, minutes, needle):
     stamps = pd.date_range("2025-12-05 02:00", "2025-12-09 00:00",
                            freq=f"{minutes}min", name="timestamp")
     frame = pd.DataFrame({c: 1.0 for c in case.hourly.columns}, index=stamps)
-    _fails_cleanly(case, case.write(frame, f"step{minutes}.csv"), needle, f"{minutes}-min"
+    _assert_fails_cleanly(case, case.write(frame, f"step{minutes}.csv"), needle, f"{minutes}-min"
                    if minutes < 60 else "2-hour")
 
 
@@ -353,7 +353,7 @@ def test_irregular_steps(case):
     quarter = _quarter_hours(case.hourly, spread=0.1)
     quarter = quarter.rename(index={pd.Timestamp("2025-12-05 10:15"):
                                     pd.Timestamp("2025-12-05 10:22")})
-    _fails_cleanly(case, case.write(quarter, "irregular.csv"), "irregular time steps",
+    _assert_fails_cleanly(case, case.write(quarter, "irregular.csv"), "irregular time steps",
                    "15-min")
 
 
@@ -392,7 +392,7 @@ def test_temperature_x1000_is_an_error_unless_allowed(case):
     scaled = case.hourly.copy()
     scaled[AIR] = scaled[AIR] * 1000
     path = case.write(scaled, "x1000.csv")
-    _fails_cleanly(case, path, f"column '{AIR}' [C], line 2", "[-60, 100]", "×1000",
+    _assert_fails_cleanly(case, path, f"column '{AIR}' [C], line 2", "[-60, 100]", "×1000",
                    "--allow-implausible")
     text = assert_ok(case.validate(path, "--allow-implausible"))
     assert "accepted: --allow-implausible" in " ".join(text.split())
@@ -401,14 +401,14 @@ def test_temperature_x1000_is_an_error_unless_allowed(case):
 def test_power_x1000_against_the_ensemble(case):
     scaled = case.hourly.copy()
     scaled[HEATING] = scaled[HEATING] * 1000
-    _fails_cleanly(case, case.write(scaled, "kw_as_w.csv"), f"column '{HEATING}' [W]",
+    _assert_fails_cleanly(case, case.write(scaled, "kw_as_w.csv"), f"column '{HEATING}' [W]",
                    "20 × the largest simulated magnitude", "×1000")
 
 
 def test_kelvin_in_a_celsius_column(case):
     kelvin = case.hourly.copy()
     kelvin[AIR] = kelvin[AIR] + 273.15
-    _fails_cleanly(case, case.write(kelvin, "kelvin.csv"), "kelvin in a °C column?")
+    _assert_fails_cleanly(case, case.write(kelvin, "kelvin.csv"), "kelvin in a °C column?")
 
 
 def test_config_range_makes_heating_non_negative(case, tmp_path):
@@ -433,21 +433,21 @@ def test_config_range_makes_heating_non_negative(case, tmp_path):
 def test_diagnose_refuses_bad_data_before_writing(case):
     lines = case.csv_lines()
     lines[3] = lines[3].rsplit(",", 1)[0] + ",inf"
-    _fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{AIR}'", "line 4",
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), f"column '{AIR}'", "line 4",
                    command="diagnose", extra=("--no-progress",))
     scaled = case.hourly.copy()
     scaled[AIR] = scaled[AIR] * 1000
-    _fails_cleanly(case, case.write(scaled, "x1000.csv"), "×1000", command="diagnose",
+    _assert_fails_cleanly(case, case.write(scaled, "x1000.csv"), "×1000", command="diagnose",
                    extra=("--no-progress",))
 
 
 def test_calibrate_refuses_bad_data_before_writing(case):
     duplicated = pd.concat([case.hourly, case.hourly.iloc[[5]]])
-    _fails_cleanly(case, case.write(duplicated, "dupes.csv"), "repeats line",
+    _assert_fails_cleanly(case, case.write(duplicated, "dupes.csv"), "repeats line",
                    command="calibrate", extra=("--no-progress",))
     scaled = case.hourly.copy()
     scaled[AIR] = scaled[AIR] * 1000
-    _fails_cleanly(case, case.write(scaled, "x1000.csv"), f"column '{AIR}'", "×1000",
+    _assert_fails_cleanly(case, case.write(scaled, "x1000.csv"), f"column '{AIR}'", "×1000",
                    command="calibrate", extra=("--no-progress",))
 
 
@@ -477,10 +477,10 @@ def test_calibrate_bounds_power_by_its_design_when_the_run_has_no_results(case, 
 
 
 def test_run_and_sensitivity_refuse_bad_data(case):
-    text = _fails_cleanly(case, case.text(b"\x00\x01binary", "blob.csv"), "binary",
+    text = _assert_fails_cleanly(case, case.text(b"\x00\x01binary", "blob.csv"), "binary",
                           command="run", extra=("--no-progress",))
     assert "ran" not in text
-    _fails_cleanly(case, case.text("timestamp,heating_power_w\n", "header.csv"),
+    _assert_fails_cleanly(case, case.text("timestamp,heating_power_w\n", "header.csv"),
                    "no data rows", command="sensitivity", extra=("--no-progress",))
     assert not (case.run_dir / "morris").exists()
 
@@ -499,7 +499,7 @@ def test_slash_dates_are_read_with_one_format_or_refused_as_ambiguous(case):
     original = hourly.index
     hourly.index = original.strftime("%d/%m/%Y %H:%M")
     # Every day of the window is 12 or less: day/month and month/day both read every row.
-    _fails_cleanly(case, case.write(hourly, "ambiguous.csv"), "ISO 8601", "line 2")
+    _assert_fails_cleanly(case, case.write(hourly, "ambiguous.csv"), "ISO 8601", "line 2")
     # One stamp past the 12th (outside the test windows) settles it as day/month.
     extra = hourly.iloc[[0]].copy()
     extra.index = pd.Index(["13/12/2025 01:00"])
