@@ -11,13 +11,20 @@ power, four fitted parameters, the last week held out) on the surrogate:
     share of false ``model_form`` verdicts;
 (3) the detection limit: the wind infiltration coefficient swept over a few
     values, ``--seeds`` noise seeds each: the share of datasets where
-    ``infiltration_wind`` is found; the smallest value found in ≥ 9 of 10;
-(4) with ``--energyplus``: the two EnergyPlus cases of the tests (20 days).
+    the infiltration law is found; the smallest value found in ≥ 9 of 10;
+(4) with ``--energyplus``: the two EnergyPlus cases of the tests (20 days);
+(5) with ``--random N``: the randomised benchmark of issue 14 instead of (1)-(4):
+    ``N`` truths drawn by ``bench/diagnosis_random.py`` (effect family, shape,
+    size in detection limits, season, setpoint regime, noise, model, backend)
+    from ``--seed S`` (default: drawn from the clock and printed), plus
+    ``--nulls K`` null datasets (default 40); writes ``bench/diagnosis_random.md``
+    and the ``diagnose_random_*`` figures.
 
 Writes ``bench/results.json`` (names ``diagnose_*``) and
 ``bench/diagnosis_cases.md`` (the table).
 
     python bench/diagnosis_bench.py [--nulls 30] [--seeds 10] [--energyplus] [--parts cases,nulls,sweep]
+    python bench/diagnosis_bench.py --random 60 [--seed S] [--nulls 40] [--backends surrogate,energyplus]
 """
 
 from __future__ import annotations
@@ -132,7 +139,7 @@ def detection_limit(work: Path, base: Path, seeds: int,
                                 [clean.assign(heating_power_w=v) for v in noisy],
                                 [work / f"wind_{value:g}_{i}" for i in range(seeds)],
                                 backend="surrogate", announce=quiet)
-        found[value] = sum(r.cause.get("extension") == "infiltration_wind"
+        found[value] = sum(r.cause.get("extension") == EXPECTED["wind_infiltration"][1]
                            for r in results) / seeds
         print(f"wind infiltration {value:g}: found in {found[value]:.0%}", flush=True)
     reliable = [v for v, share in found.items() if share >= 0.9]
@@ -196,7 +203,15 @@ def markdown(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--nulls", type=int, default=30)
+    parser.add_argument("--nulls", type=int, default=None,
+                        help="null datasets (default 30; 40 with --random)")
+    parser.add_argument("--random", type=int, default=0, metavar="N",
+                        help="run the randomised benchmark with N drawn truths instead")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of --random's draws (default: from the clock, printed)")
+    parser.add_argument("--backends", default="surrogate",
+                        help="comma-separated backends --random draws from")
+    parser.add_argument("--jobs", type=int, default=None, help="parallel runs per diagnosis")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--energyplus", action="store_true")
     parser.add_argument("--sweep", default="0.0001,0.0002,0.0003,0.0004,0.0005",
@@ -204,6 +219,13 @@ def main() -> None:
     parser.add_argument("--parts", default="cases,nulls,sweep",
                         help="comma-separated: cases, nulls, sweep")
     args = parser.parse_args()
+    if args.random:
+        from diagnosis_random import main as random_main
+
+        random_main(args.random, args.seed, 40 if args.nulls is None else args.nulls,
+                    tuple(args.backends.split(",")), jobs=args.jobs)
+        return
+    args.nulls = 30 if args.nulls is None else args.nulls
     parts = set(args.parts.split(","))
     work = scratch("diagnosis-")
     base = base_config(work)

@@ -155,6 +155,81 @@ def test_false_model_form_verdicts_stay_rare_over_null_datasets(surrogate_base, 
 
 
 # ---------------------------------------------------------------------------
+# Effects shaped unlike the candidates: other day types, a radiant part, another
+# infiltration law, two at once. The truths are plain EnergyPlus objects
+# (bpsflow.diagnosis.hidden.EFFECTS), never the candidate snippets.
+
+
+@pytest.mark.slow
+def test_weekend_only_gain_is_found_with_its_size(tmp_path):
+    """A weekend 10–16 h gain over 30 days: every whole-week fold holds two of its days."""
+    base = base_config(tmp_path / "base", days=30)
+    case = make_case(base, tmp_path / "truth", "weekend_gain", 300.0, FITTED_TRUTH, seed=4)
+    config = load_config(base)
+    result = diagnose(config, read_measured(case.measured, config).frame, tmp_path / "out",
+                      backend="surrogate", announce=quiet)
+    assert result.verdict == "model_form"
+    assert result.cause["extension"] == "internal_gain_schedule"
+    accepted = [e for e in result.extensions if e["accepted"]]
+    assert accepted[0]["schedule"]["day_type"] == "weekends"
+    assert (accepted[0]["schedule"]["start_hour"], accepted[0]["schedule"]["end_hour"]) == (10, 16)
+    assert sum(e["fitted"]["scheduled_gain_w"] for e in accepted
+               if e["name"] == "internal_gain_schedule") == pytest.approx(300.0, rel=0.15)
+    assert accepted[0]["cross_validation"]["folds"] >= 3
+    assert result.gain["after"] < 0.5 * result.gain["before"]
+
+
+@pytest.mark.slow
+def test_two_effects_another_law_and_a_radiant_evening_gain_are_both_found(surrogate_base,
+                                                                           tmp_path):
+    """Infiltration ∝ V² (EnergyPlus's D term) plus a weekday 17–22 h gain, half radiant.
+
+    Both must be accepted (in either order), the law must carry the V² term
+    at the true coefficient, and the gain its size and a radiant part.
+    """
+    case = make_case(surrogate_base, tmp_path / "truth", "wind_squared_infiltration", 0.001,
+                     FITTED_TRUTH, seed=6, more_effects=(("radiant_evening_gain", 300.0),))
+    config = load_config(surrogate_base)
+    result = diagnose(config, read_measured(case.measured, config).frame, tmp_path / "out",
+                      backend="surrogate", announce=quiet)
+    assert result.verdict == "model_form"
+    accepted = {e["name"]: e for e in result.extensions if e["accepted"]}
+    assert {"infiltration", "internal_gain_schedule"} <= set(accepted), list(accepted)
+    law = [e for e in result.extensions if e["accepted"] and e["name"] == "infiltration"][-1]
+    assert "infiltration_d_m3s_per_m2s2" in law["terms"]
+    assert law["fitted"]["infiltration_d_m3s_per_m2s2"] == pytest.approx(0.001, rel=0.15)
+    gain = accepted["internal_gain_schedule"]
+    assert gain["fitted"]["scheduled_gain_w"] == pytest.approx(300.0, rel=0.15)
+    assert gain["fitted"]["scheduled_gain_radiant_fraction"] == pytest.approx(0.5, abs=0.2)
+    assert (gain["schedule"]["start_hour"], gain["schedule"]["end_hour"]) == (17, 22)
+    assert result.gain["after"] < 0.5 * result.gain["before"]
+
+
+@pytest.mark.slow
+def test_thermal_mass_under_a_night_setback_is_named_with_its_size(tmp_path):
+    """A hidden 0.2 m masonry InternalMass of 40 m² (its own construction and convection).
+
+    Under a 30/22 °C night setback the mass shapes every morning's reheat;
+    the diagnosis must name ``thermal_mass`` and fit its area and thickness.
+    """
+    base = base_config(tmp_path / "base")
+    raw = yaml.safe_load(base.read_text())
+    raw["model"]["tests"][0].update(setpoint_c=30.0, setback_c=22.0, setback_start_hour=19,
+                                    setback_end_hour=7)
+    base.write_text(yaml.safe_dump(raw, sort_keys=False))
+    case = make_case(base, tmp_path / "truth", "heavy_mass", 40.0, FITTED_TRUTH, seed=8)
+    config = load_config(base)
+    result = diagnose(config, read_measured(case.measured, config).frame, tmp_path / "out",
+                      backend="surrogate", announce=quiet)
+    assert result.verdict == "model_form"
+    assert result.cause["extension"] == "thermal_mass"
+    mass = next(e for e in result.extensions if e["accepted"])
+    assert mass["fitted"]["internal_mass_area_m2"] == pytest.approx(40.0, rel=0.2)
+    assert mass["fitted"]["internal_mass_thickness_m"] == pytest.approx(0.2, rel=0.2)
+    assert result.gain["after"] < 0.2 * result.gain["before"]
+
+
+# ---------------------------------------------------------------------------
 # Pieces with known answers
 
 
@@ -173,7 +248,9 @@ def test_gain_blocks_recover_a_block_confounded_with_a_fitted_response():
     profile, best = found[0]
     assert (best["day_type"], best["start_hour"], best["end_hour"]) == ("weekdays", 9, 17)
     assert best["level"] == pytest.approx(150.0, rel=0.05)
-    assert profile["profile"].sum() == 8 and profile.loc[(1, 12), "profile"] == 0
+    # indexed by day of week (0 = Monday) x hour: five weekdays of 8 h, not Saturday
+    assert profile["profile"].sum() == 40 and profile.loc[(5, 12), "profile"] == 0
+    assert profile.loc[(0, 12), "profile"] == 1
 
 
 def test_fit_many_finds_known_least_squares_optima(surrogate_base):
@@ -221,11 +298,14 @@ def test_extension_variants_coexist_and_are_nested_at_zero(surrogate_base, tmp_p
     union = extend_config(config, extension, tmp_path / "a", on, variant=1)
     union = extend_config(union, extension, tmp_path / "b", 1 - on, variant=2)
     names = [p.name for p in union.parameters if p.group == "extension"]
-    assert names == ["scheduled_gain_w_v1", "scheduled_gain_w_v2"]
+    assert names == ["scheduled_gain_w_v1", "scheduled_gain_radiant_fraction_v1",
+                     "scheduled_gain_w_v2", "scheduled_gain_radiant_fraction_v2"]
     timestamps = pd.date_range("2025-11-04 01:00", periods=24 * 4, freq="h")
     simulate = output_simulator(union, "heating_power_w", timestamps, backend="surrogate",
                                 work_dir=tmp_path / "runs")
     sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    sample.update({"scheduled_gain_radiant_fraction_v1": 0.0,     # all convective
+                   "scheduled_gain_radiant_fraction_v2": 0.0})
     rows = [{**sample, "scheduled_gain_w_v1": 0.0, "scheduled_gain_w_v2": 0.0},
             {**sample, "scheduled_gain_w_v1": 100.0, "scheduled_gain_w_v2": 0.0}]
     predicted = simulate(pd.DataFrame(rows))
@@ -344,9 +424,18 @@ def test_rendered_snippets_parse_name_the_zone_and_create_their_schedule(tmp_pat
         assert not re.search(r"\{[a-z_]+\}", rendered.text)     # every placeholder filled
         parsed = parse_idf_text(rendered.text)
         main = parsed.find(extension.parameters[0].object, rendered.object_name)
+        schedule = [o for o in parsed.objects if o.type.startswith("SCHEDULE:")]
+        if main.type == "INTERNALMASS":      # no schedule; its own construction
+            assert main.get("Zone or ZoneList Name") == "East Room"
+            construction = parsed.find("Construction", main.get("Construction Name"))
+            assert parsed.find("Material", construction.fields[1]).name.startswith("bpsflow_")
+            assert schedule == []
+            for added in parsed.objects:
+                assert added.name.startswith("bpsflow_")
+                assert added.name.upper() not in model_names(model)
+            continue
         assert main.get("Zone or ZoneList or Space or SpaceList Name") == "East Room"
         assert main.get("Schedule Name") == rendered.schedule_name
-        schedule = [o for o in parsed.objects if o.type.startswith("SCHEDULE:")]
         assert [o.name for o in schedule] == [rendered.schedule_name]
         if extension.schedule_file is None:
             assert schedule[0].type == "SCHEDULE:CONSTANT"
@@ -364,9 +453,9 @@ def test_rendered_snippets_parse_name_the_zone_and_create_their_schedule(tmp_pat
     assert (infiltration.object_name, infiltration.schedule_name) == (
         "bpsflow_infiltration_wind_2", "bpsflow_infiltration_wind_always_on_2")
     # the snippet assembly (which refuses duplicate schedule/infiltration/equipment names)
-    # takes all four together
+    # takes them all together
     assembled = model_objects(SimpleNamespace(idf=base, idf_objects=files))
-    assert len(assembled.of_type("ZONEINFILTRATION:DESIGNFLOWRATE")) == 3
+    assert len(assembled.of_type("ZONEINFILTRATION:DESIGNFLOWRATE")) == 4
 
 
 #: The test cell's snippets before they were templates (names as they were).
@@ -398,6 +487,8 @@ def test_test_cell_rendering_matches_the_previous_snippets_apart_from_names():
     always_on = model.find("Schedule:Constant", "AlwaysOn")       # what the old ones used
     assert float(always_on.get("Hourly Value")) == 1.0
     for name, extension in EXTENSIONS.items():
+        if name not in PREVIOUS:        # added since (infiltration, thermal_mass)
+            continue
         rendered = render_snippet(extension, model, zone)
         new = parse_idf_text(rendered.text).objects
         old = parse_idf_text(PREVIOUS[name]).objects
@@ -506,6 +597,12 @@ def test_hidden_effect_is_written_for_the_chosen_zone(tmp_path):
     for effect in EFFECTS:
         text = render_effect(effect, 0.5, model, "east room")
         parsed = parse_idf_text(text)
+        if effect == "heavy_mass":
+            # InternalMass: its zone is field 3 and its area (the effect's size) field 5.
+            mass = next(o for o in parsed.objects if o.type == "INTERNALMASS")
+            assert mass.fields[2] == "East Room"
+            assert float(mass.fields[4]) == 0.5
+            continue
         main = parsed.objects[0]
         assert main.get("Zone or ZoneList or Space or SpaceList Name") == "East Room"
         schedule = main.get("Schedule Name")

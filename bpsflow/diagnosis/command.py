@@ -62,6 +62,8 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     console.print(summary_table(result))
     console.print(f"[bold]verdict: {result.verdict}[/bold] — {result.cause.get('summary', '')}",
                   highlight=False)
+    for note in result.notes:
+        console.print(f"[yellow]note: {note}[/yellow]", highlight=False)
     console.print(f"wrote {paths['json']}, {paths['markdown']} and figures in {out / 'figures'}",
                   highlight=False)
     return result

@@ -44,7 +44,7 @@ WEATHER_DRIVERS: dict[str, str] = {
 DRIVER_NAMES: tuple[str, ...] = (
     *WEATHER_DRIVERS,
     *(f"incident_solar_{facade}" for facade in FACADES),
-    "wind_speed", "hour_of_day", "weekend",
+    "wind_speed", "hour_of_day", "weekend", "day_of_week",
 )
 
 #: Units of the derived drivers.
@@ -57,6 +57,7 @@ DRIVER_UNITS: dict[str, str] = {
     "wind_speed": "m/s",
     "hour_of_day": "h",
     "weekend": "1",
+    "day_of_week": "day (0 = Monday)",
 }
 
 
@@ -170,6 +171,8 @@ def derive_drivers(weather: Path, timestamps: pd.DatetimeIndex, measured: pd.Dat
         * ``wind_speed`` — EPW, m/s;
         * ``hour_of_day`` — the hour's start, 0–23 (the value at 01:00 is 0);
         * ``weekend`` — 1.0 when the hour starts on a Saturday or Sunday, else 0.0;
+        * ``day_of_week`` — the day the hour starts on, 0 (Monday) to 6 (an
+          unmodelled schedule on one day of the week);
         * measured columns in their own units (``measured_<name>`` when the
           name is a derived driver's).
 
@@ -192,6 +195,7 @@ def derive_drivers(weather: Path, timestamps: pd.DatetimeIndex, measured: pd.Dat
     out["wind_speed"] = hourly["wind_speed"]
     out["hour_of_day"] = hour_starts.hour.to_numpy().astype(float)
     out["weekend"] = (hour_starts.day_of_week.to_numpy() >= 5).astype(float)
+    out["day_of_week"] = hour_starts.day_of_week.to_numpy().astype(float)
     drivers = pd.DataFrame(out, index=timestamps)
 
     if measured is not None:
@@ -227,6 +231,8 @@ def driver_group(name: str) -> str:
         return "hour"
     if lowered == "weekend":
         return "weekend"
+    if lowered == "day_of_week":
+        return "day"
     if "temperature" in lowered or lowered.endswith("_c"):
         return "temperature"
     if any(word in lowered for word in ("radiation", "irradiance", "solar")):

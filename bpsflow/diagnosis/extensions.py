@@ -8,20 +8,32 @@ discrepancy is large, revisit the physical model rather than let δ absorb it;
 §2.1 lists the sources such an extension stands for).
 
 =======================  =========================================  ============================
-extension                IDF objects                                new parameter (unit)
+extension                IDF objects                                new parameters (unit)
 =======================  =========================================  ============================
+infiltration             ZoneInfiltration:DesignFlowRate with       infiltration_a_m3s (m³/s),
+                         Design Flow Rate 1: flow = A + B|ΔT| +     infiltration_b_m3s_per_k,
+                         C V + D V² (EnergyPlus's law, the          infiltration_c_m3s_per_ms,
+                         coefficients are flows); Schedule:Constant infiltration_d_m3s_per_m2s2
+                         1. Any subset of the terms is fitted       (all ≥ 0)
+                         (``terms``), the others stay 0
 infiltration_wind        ZoneInfiltration:DesignFlowRate, flow =    infiltration_wind_m3s_per_ms
                          design × wind speed (C = 1);               (m³/s per m/s)
                          Schedule:Constant 1
 internal_gain_schedule   OtherEquipment, Schedule:File on/off       scheduled_gain_w (W while
-                         block (day type × hours, the block that    on)
-                         best explains the calibration residuals)
+                         block (day type × hours, the block that    on),
+                         best explains the calibration residuals;   scheduled_gain_radiant_
+                         day types: weekdays, weekends, all days    fraction (-, 0–0.9)
+                         or one day of the week)
 solar_aperture           OtherEquipment, Schedule:File of the       solar_aperture_m2 (m²: W of
                          irradiance on the zone's facade (model     gain per W/m² incident)
                          geometry, pvlib)
 envelope_ua              ZoneInfiltration:DesignFlowRate, constant  extra_conductance_m3s (m³/s;
                          flow (A = 1): a conductance to outdoors;   ×ρc_p ≈ 1206 J/(m³K) = W/K)
                          Schedule:Constant 1
+thermal_mass             Material (0.1 m concrete), Construction,   internal_mass_area_m2 (m²,
+                         InternalMass (area 0.001 m² + the          added to the token 0.001 m²)
+                         parameter), its inside convection fixed
+                         at 2.5 W/(m²K)
 =======================  =========================================  ============================
 
 The snippets are templates (:func:`render_snippet`): every extension is
@@ -30,6 +42,14 @@ named ``bpsflow_<extension>`` (with a variant suffix, and a number when the
 model already uses the name) and a schedule it needs is created by the
 snippet itself, never assumed to exist. No model's zone, surface or schedule
 is named here.
+
+Nested at zero: with every new parameter at 0 the extended model is the
+original one. ``thermal_mass`` is the one exception in the letter, not in
+effect: EnergyPlus refuses an ``InternalMass`` of zero area, so the snippet
+carries a token 0.001 m² of concrete (≈ 190 J/K, against tens of kJ/K of
+air) and the parameter adds to it; the outputs at the parameter's 0 differ
+from the original model's by far less than a measurement resolves
+(``tests/test_diagnosis_extensions.py`` measures it on both backends).
 
 Which extension answers which driver (DESIGN.md §8 names) is
 :data:`DRIVER_EXTENSIONS`.
@@ -75,6 +95,15 @@ class NewParameter:
     upper: float
     unit: str
     description: str
+    #: How the value reaches the field (:func:`bpsflow.simulation.targets.apply_mode`):
+    #: ``absolute`` writes it, ``additive`` adds it to the template's value.
+    mode: str = "absolute"
+    #: Short name of the term in a law (``A``..``D`` for infiltration), for ``terms``.
+    term: str = ""
+    #: The value at which the extension leaves the model as it was (its template's
+    #: value): 0 for a design level or coefficient; a shape parameter (a thickness)
+    #: keeps its template value, since the level at 0 already nests the model.
+    nested: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -106,6 +135,11 @@ class Extension:
         return f"{self.object_name}_{'hourly' if self.schedule_file else 'always_on'}"
 
 
+#: Upper bounds of the infiltration law's coefficients: a flow of about 0.05 m³/s
+#: (≈ 60 W/K) at ΔT = 10 K or V = 5 m/s, the scale of ``infiltration_wind``'s
+#: 0.05 m³/s per m/s and ``envelope_ua``'s 0.1 m³/s.
+INFILTRATION_BOUNDS = {"A": 0.1, "B": 0.005, "C": 0.05, "D": 0.01}
+
 EXTENSIONS: dict[str, Extension] = {
     "infiltration_wind": Extension(
         name="infiltration_wind",
@@ -120,9 +154,13 @@ EXTENSIONS: dict[str, Extension] = {
         name="internal_gain_schedule",
         description="an unmodelled internal gain following an hour-of-day / weekday profile",
         snippet="internal_gain_schedule.idf",
-        parameters=(NewParameter(
-            "scheduled_gain_w", "OtherEquipment", "Design Level",
-            -3000.0, 3000.0, "W", "gain while the block schedule is on"),),
+        parameters=(
+            NewParameter("scheduled_gain_w", "OtherEquipment", "Design Level",
+                         -3000.0, 3000.0, "W", "gain while the block schedule is on"),
+            # no effect while the design level is 0: nested at 0 like the level
+            NewParameter("scheduled_gain_radiant_fraction", "OtherEquipment",
+                         "Fraction Radiant", 0.0, 0.9, "-",
+                         "radiant fraction of the scheduled gain (to the inside faces)")),
         schedule_file="internal_gain_profile.csv",
         drivers=("hour_of_day", "weekend")),
     "solar_aperture": Extension(
@@ -145,6 +183,45 @@ EXTENSIONS: dict[str, Extension] = {
             "Design Flow Rate", 0.0, 0.1, "m3/s",
             "constant outdoor air flow (× 1206 J/(m³K) = W/K)"),),
         drivers=("outdoor_air_temperature",)),
+    "infiltration": Extension(
+        name="infiltration",
+        description="infiltration following EnergyPlus's design-flow-rate law "
+                    "A + B|ΔT| + C·V + D·V² (a subset of the terms, chosen by BIC)",
+        snippet="infiltration.idf",
+        parameters=(
+            NewParameter("infiltration_a_m3s", "ZoneInfiltration:DesignFlowRate",
+                         "Constant Term Coefficient", 0.0, INFILTRATION_BOUNDS["A"], "m3/s",
+                         "constant infiltration flow", term="A"),
+            NewParameter("infiltration_b_m3s_per_k", "ZoneInfiltration:DesignFlowRate",
+                         "Temperature Term Coefficient", 0.0, INFILTRATION_BOUNDS["B"],
+                         "m3/s per K", "infiltration flow per K of |T_zone - T_out|", term="B"),
+            NewParameter("infiltration_c_m3s_per_ms", "ZoneInfiltration:DesignFlowRate",
+                         "Velocity Term Coefficient", 0.0, INFILTRATION_BOUNDS["C"],
+                         "m3/s per m/s", "infiltration flow per m/s of local wind speed",
+                         term="C"),
+            NewParameter("infiltration_d_m3s_per_m2s2", "ZoneInfiltration:DesignFlowRate",
+                         "Velocity Squared Term Coefficient", 0.0, INFILTRATION_BOUNDS["D"],
+                         "m3/s per (m/s)2", "infiltration flow per (m/s)² of local wind speed",
+                         term="D")),
+        drivers=("wind_speed", "outdoor_air_temperature")),
+    "thermal_mass": Extension(
+        name="thermal_mass",
+        description="unmodelled thermal mass in the zone (an InternalMass of concrete): "
+                    "damps and delays the daily swing of the loads",
+        snippet="thermal_mass.idf",
+        parameters=(NewParameter(
+            "internal_mass_area_m2", "InternalMass", "Surface Area", 0.0, 100.0, "m2",
+            "exposed area of the concrete internal mass", mode="additive"),
+                    NewParameter(
+            "internal_mass_thickness_m", "Material", "Thickness", 0.02, 0.4, "m",
+            "thickness of the internal mass's concrete layer (its time constant)",
+            nested=0.1)),
+        # Mass answers the daily cycle of what drives the loads: outdoor
+        # temperature and solar gain, felt hours later. No driver is lagged, so
+        # it is nominated by the daily structure those leave in the residuals.
+        drivers=("hour_of_day", "outdoor_air_temperature", "global_horizontal_radiation",
+                 "incident_solar_south", "incident_solar_east", "incident_solar_west",
+                 "incident_solar_north", "incident_solar_roof")),
 }
 
 #: Driver name -> the extensions that can produce its signature, most specific first.
@@ -350,6 +427,8 @@ class Snippet:
     object_name: str
     schedule_name: str
     file_name: str | None
+    #: the name given to the template's ``{material}`` (a parameter on a Material targets it)
+    material_name: str = ""
 
 
 def render_snippet(extension: Extension, model: IdfModel, zone: str,
@@ -389,33 +468,91 @@ def render_snippet(extension: Extension, model: IdfModel, zone: str,
     if extension.schedule_file:
         stem, suffix = extension.schedule_file.rsplit(".", 1)
         file_name = f"{stem}{tag}.{suffix}"
+    # Names of the objects a template defines besides its main object (the
+    # thermal mass's material and construction), free in the model like it.
+    material_name = free_name(f"{extension.object_name}_material{tag}", taken)
+    construction_name = free_name(f"{extension.object_name}_construction{tag}", taken)
     text = fill_template(snippet_path(extension).read_text(),
                          {"object": object_name, "zone": zone, "schedule": schedule_name,
-                          "file": file_name or ""})
-    return Snippet(text, zone, object_name, schedule_name, file_name)
+                          "file": file_name or "", "material": material_name,
+                          "construction": construction_name})
+    return Snippet(text, zone, object_name, schedule_name, file_name, material_name)
+
+
+def free_parameters(extension: Extension,
+                    terms: tuple[str, ...] | list[str] | None = None) -> tuple[NewParameter, ...]:
+    """The extension's parameters that ``terms`` leaves free (all of them for ``None``).
+
+    ``terms`` names parameters by their name (``infiltration_d_m3s_per_m2s2``)
+    or their term (``D``), in any order and case; the result keeps the
+    extension's order.
+
+    Raises
+    ------
+    ValueError
+        A term that is not one of the extension's, or an empty ``terms``.
+    """
+    if terms is None:
+        return extension.parameters
+    wanted = {str(t).strip().lower() for t in terms}
+    known = {p.name.lower() for p in extension.parameters} \
+        | {p.term.lower() for p in extension.parameters if p.term}
+    unknown = sorted(wanted - known)
+    if unknown or not wanted:
+        names = ", ".join(f"{p.name} ({p.term})" if p.term else p.name
+                          for p in extension.parameters)
+        raise ValueError(f"extension {extension.name}: terms {unknown or '[]'} are not among "
+                         f"its parameters: {names}")
+    return tuple(p for p in extension.parameters
+                 if p.name.lower() in wanted or (p.term and p.term.lower() in wanted))
+
+
+def term_subsets(extension: Extension, max_size: int | None = None) -> list[tuple[str, ...]]:
+    """Every non-empty subset of the extension's terms, smallest first (for a BIC choice).
+
+    Terms are the parameters' :attr:`NewParameter.term` (their names when
+    they have none). For ``infiltration``: ``("A",), ("B",), …, ("A", "B"),
+    …, ("A", "B", "C", "D")`` — 15 subsets, or fewer with ``max_size``.
+    """
+    from itertools import combinations
+
+    labels = [p.term or p.name for p in extension.parameters]
+    top = len(labels) if max_size is None else min(max_size, len(labels))
+    return [subset for size in range(1, top + 1) for subset in combinations(labels, size)]
 
 
 def new_parameters(extension: Extension, object_name: str, variant: int | None = None,
-                   zone: str | None = None) -> list[Parameter]:
+                   zone: str | None = None,
+                   terms: tuple[str, ...] | list[str] | None = None,
+                   material_name: str = "") -> list[Parameter]:
     """The extension's parameters as config parameters (uniform over the search range).
 
     ``object_name`` is the rendered main object's name (:attr:`Snippet.object_name`).
+    ``terms`` (default: all) chooses which parameters are free
+    (:func:`free_parameters`); the fields of the others keep the template's
+    value, 0, so that a subset of a law's terms is fitted.
     """
     tag = "" if variant is None else f"_v{variant}"
-    provenance = {"method": "bpsflow diagnose", "extension": extension.name, "nested_at": 0.0}
+    provenance: dict = {"method": "bpsflow diagnose", "extension": extension.name,
+                        "nested_at": 0.0}
     if zone is not None:
         provenance["zone"] = zone
-    return [Parameter(name=p.name + tag, group="extension", mode="absolute",
+    return [Parameter(name=p.name + tag, group="extension", mode=p.mode,  # type: ignore[arg-type]
                       description=f"{p.description} ({p.unit}); added by bpsflow diagnose",
                       distribution=Uniform(type="uniform", lower=p.lower, upper=p.upper),
-                      targets=[IdfTarget(object=p.object, name=object_name, field=p.field)],
-                      provenance={**provenance, "reports_as": p.name})
-            for p in extension.parameters]
+                      targets=[IdfTarget(object=p.object, field=p.field,
+                                         name=material_name if p.object.upper() == "MATERIAL"
+                                         and material_name else object_name)],
+                      provenance={**provenance, "nested_at": float(p.nested),
+                                  "reports_as": p.name,
+                                  **({"term": p.term} if p.term else {})})
+            for p in free_parameters(extension, terms)]
 
 
 def extend_config(config: Config, extension: Extension, directory: Path,
                   schedule: pd.Series | None = None, variant: int | None = None, *,
-                  zone: str | None = None, output: str | None = None) -> Config:
+                  zone: str | None = None, output: str | None = None,
+                  terms: tuple[str, ...] | list[str] | None = None) -> Config:
     """A copy of ``config`` whose model includes ``extension`` (files in ``directory``).
 
     The template is rendered (:func:`render_snippet`) against the model as it
@@ -437,8 +574,14 @@ def extend_config(config: Config, extension: Extension, directory: Path,
         of ``config``, ``output`` and the extension).
     output : str, optional
         The diagnosed output, when ``zone`` is not given.
+    terms : tuple of str, optional
+        The extension's parameters that are free, by name or term (e.g.
+        ``("A", "D")`` for ``infiltration``; default: all). The fields of
+        the others stay at the template's 0: no parameter targets them.
     """
     from bpsflow.simulation.idf import model_objects
+
+    free_parameters(extension, terms)      # a bad term fails before any file is written
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -459,9 +602,38 @@ def extend_config(config: Config, extension: Extension, directory: Path,
     names = {p.name for p in extended.parameters}
     extended.parameters = [*extended.parameters,
                            *[p for p in new_parameters(extension, rendered.object_name, variant,
-                                                       rendered.zone)
+                                                       rendered.zone, terms,
+                                                       rendered.material_name)
                              if p.name not in names]]
     return extended
+
+
+#: How each infiltration term reads in :func:`law_text`.
+_LAW_TERMS = (("infiltration_a_m3s", ""), ("infiltration_b_m3s_per_k", "·|ΔT|"),
+              ("infiltration_c_m3s_per_ms", "·V"), ("infiltration_d_m3s_per_m2s2", "·V²"))
+
+
+def law_text(fitted: dict[str, float], digits: int = 3) -> str:
+    """The fitted infiltration law in words, e.g. ``"flow = 0.012 + 0.0031·V² m³/s"``.
+
+    Parameters
+    ----------
+    fitted : dict
+        Fitted values by parameter name (the reported names of the
+        ``infiltration`` extension, or with a ``_v<n>`` variant suffix);
+        terms that are missing or 0 are left out.
+    digits : int
+        Significant digits of each coefficient.
+
+    Notes
+    -----
+    ``ΔT`` is ``T_zone − T_out`` (K) and ``V`` the local wind speed at the
+    zone centroid (m/s), as in EnergyPlus's ``ZoneInfiltration:DesignFlowRate``.
+    """
+    base = {re.sub(r"_v\d+$", "", k): float(v) for k, v in fitted.items()}
+    parts = [f"{base[name]:.{digits}g}{suffix}" for name, suffix in _LAW_TERMS
+             if base.get(name, 0.0) != 0.0]
+    return f"flow = {' + '.join(parts) if parts else '0'} m³/s"
 
 
 # ---------------------------------------------------------------------------
@@ -690,8 +862,15 @@ def year_hours(year: int) -> pd.DatetimeIndex:
     return pd.date_range(pd.Timestamp(year=year, month=1, day=1, hour=1), periods=8760, freq="h")
 
 
-#: Day types a gain block may cover: name -> (weekdays on, weekend days on).
-DAY_TYPES = {"weekdays": (1, 0), "weekends": (0, 1), "all days": (1, 1)}
+#: Days of the week (0 = Monday), the single-day day types.
+WEEK_DAYS = ("monday", "tuesday", "wednesday", "thursday", "friday", "saturday", "sunday")
+
+#: Day types a gain block may cover: name -> the days of the week it is on
+#: (7 flags, Monday first).
+DAY_TYPES: dict[str, tuple[int, ...]] = {
+    "weekdays": (1, 1, 1, 1, 1, 0, 0), "weekends": (0, 0, 0, 0, 0, 1, 1),
+    "all days": (1, 1, 1, 1, 1, 1, 1),
+    **{day: tuple(int(i == d) for i in range(7)) for d, day in enumerate(WEEK_DAYS)}}
 
 
 def gain_blocks(residual: pd.Series, output_sign: float,
@@ -700,7 +879,8 @@ def gain_blocks(residual: pd.Series, output_sign: float,
     """On/off blocks (day type × hours) of an unmodelled gain that best explain the residuals.
 
     Every block ``[start, end)`` hours of every day type in :data:`DAY_TYPES`
-    is tried as a regressor of the residual, together with a constant and
+    (weekdays, weekends, all days, each single day of the week) is tried as
+    a regressor of the residual, together with a constant and
     ``fitted_jacobian`` (the fitted parameters' responses at the residual's
     hours, ``(n, k)``): the calibration that produced the residual has bent
     those parameters towards the missing gain (e.g. more solar gain for a
@@ -712,61 +892,114 @@ def gain_blocks(residual: pd.Series, output_sign: float,
     each decides. A block's profile is 1 in the block and 0 elsewhere, so
     the fitted design level is the gain while it is on (W).
 
+    The 10 × 300 regressions share their base: the residual and the 168
+    day-of-week × hour indicators are projected off the base once, and each
+    block's fit follows from prefix sums of their inner products (exact, the
+    same least squares as one regression per block).
+
     Returns
     -------
     list of (profile, block)
-        ``profile``: column ``profile`` indexed by ``weekend`` (0/1) × ``hour``
-        (0–23, hour start); ``block``: ``day_type``, ``start_hour``,
-        ``end_hour`` and the screen's ``level`` (W, oriented by
-        ``output_sign``, the output's response to a gain: −1 for heating).
+        ``profile``: column ``profile`` indexed by ``day_of_week`` (0 =
+        Monday … 6) × ``hour`` (0–23, hour start); ``block``: ``day_type``,
+        ``start_hour``, ``end_hour`` and the screen's ``level`` (W, oriented
+        by ``output_sign``, the output's response to a gain: −1 for heating).
     """
     start = residual.index - pd.Timedelta(hours=1)
-    weekend = np.asarray(start.day_of_week >= 5)
+    day = np.asarray(start.day_of_week)
     hour = np.asarray(start.hour)
     y = residual.to_numpy(dtype=float)
     base = np.ones((len(y), 1))
     if fitted_jacobian is not None and fitted_jacobian.size:
         base = np.column_stack([base, fitted_jacobian])
+    # indicators[:, 24 d + h]: the hour starts at h on day of week d
+    indicators = np.zeros((len(y), 168))
+    indicators[np.arange(len(y)), 24 * day + hour] = 1.0
+    stacked = np.column_stack([y, indicators])
+    projected = stacked - base @ np.linalg.lstsq(base, stacked, rcond=None)[0]
+    y_res, z = projected[:, 0], projected[:, 1:]
+    counts = indicators.sum(axis=0).reshape(7, 24)
+    z_y = (z.T @ y_res).reshape(7, 24)
+    gram = (z.T @ z).reshape(7, 24, 7, 24)
+    rss_base = float(y_res @ y_res)
+    tolerance = 1e-9 * max(1.0, float(np.max(np.abs(np.diagonal(z.T @ z)))))
     ranked = []
-    for day_type, (on_weekday, on_weekend) in DAY_TYPES.items():
-        day_on = np.where(weekend, on_weekend, on_weekday).astype(bool)
-        for first in range(24):
-            for last in range(first + 1, 25):
-                block = day_on & (hour >= first) & (hour < last)
-                if block.sum() < 2 or block.all():
-                    continue
-                design = np.column_stack([block.astype(float), base])
-                coefficients = np.linalg.lstsq(design, y, rcond=None)[0]
-                rss = float(np.sum((y - design @ coefficients) ** 2))
-                ranked.append((rss, day_type, first, last, block,
-                               float(coefficients[0]) * output_sign))
+    first, last = np.triu_indices(25, k=1)          # every [first, last) with first < last
+    for day_type, days in DAY_TYPES.items():
+        on = np.flatnonzero(days)
+        hours_on = counts[on].sum(axis=0)                              # (24,)
+        cross = z_y[on].sum(axis=0)                                    # (24,)
+        inner = gram[on][:, :, on].sum(axis=(0, 2))                    # (24, 24)
+        count_prefix = np.concatenate([[0.0], np.cumsum(hours_on)])
+        cross_prefix = np.concatenate([[0.0], np.cumsum(cross)])
+        inner_prefix = np.zeros((25, 25))
+        inner_prefix[1:, 1:] = inner.cumsum(axis=0).cumsum(axis=1)
+        size = count_prefix[last] - count_prefix[first]
+        b_y = cross_prefix[last] - cross_prefix[first]
+        b_b = (inner_prefix[last, last] - inner_prefix[first, last]
+               - inner_prefix[last, first] + inner_prefix[first, first])
+        usable = (size >= 2) & (size < len(y)) & (b_b > tolerance)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coefficient = np.where(usable, b_y / b_b, 0.0)
+        rss = rss_base - coefficient * b_y
+        for i in np.flatnonzero(usable):
+            ranked.append((float(rss[i]), day_type, int(first[i]), int(last[i]),
+                           float(coefficient[i]) * output_sign))
     ranked.sort(key=lambda item: item[0])
     chosen: list = []
-    for item in ranked:
-        if all((item[4] & c[4]).sum() / (item[4] | c[4]).sum() < overlap for c in chosen):
-            chosen.append(item)
+    for _, day_type, a, b, level in ranked:
+        block = np.isin(day, np.flatnonzero(DAY_TYPES[day_type])) & (hour >= a) & (hour < b)
+        if all((block & c[4]).sum() / (block | c[4]).sum() < overlap for c in chosen):
+            chosen.append((day_type, a, b, level, block))
         if len(chosen) >= count:
             break
-    return [(block_profile(day_type, first, last),
-             {"day_type": day_type, "start_hour": first, "end_hour": last, "level": level})
-            for _, day_type, first, last, _, level in chosen]
+    return [(block_profile(day_type, a, b),
+             {"day_type": day_type, "start_hour": a, "end_hour": b, "level": level})
+            for day_type, a, b, level, _ in chosen]
 
 
 def block_profile(day_type: str, start_hour: int, end_hour: int) -> pd.DataFrame:
     """1 during ``[start_hour, end_hour)`` on the days of ``day_type``, else 0.
 
-    Column ``profile`` indexed by ``weekend`` (0/1) × ``hour`` (0–23, hour start).
+    Column ``profile`` indexed by ``day_of_week`` (0 = Monday … 6 = Sunday) ×
+    ``hour`` (0–23, hour start).
+
+    Raises
+    ------
+    ValueError
+        ``day_type`` is not one of :data:`DAY_TYPES`.
     """
-    full = pd.MultiIndex.from_product([[0, 1], range(24)], names=["weekend", "hour"])
-    on_weekday, on_weekend = DAY_TYPES[day_type]
-    return pd.DataFrame({"profile": [float(bool(on_weekend if w else on_weekday)
-                                           and start_hour <= h < end_hour) for w, h in full]},
-                        index=full)
+    if day_type not in DAY_TYPES:
+        raise ValueError(f"day type '{day_type}' is not one of {', '.join(DAY_TYPES)}")
+    full = pd.MultiIndex.from_product([range(7), range(24)], names=["day_of_week", "hour"])
+    days = DAY_TYPES[day_type]
+    return pd.DataFrame({"profile": [float(bool(days[d]) and start_hour <= h < end_hour)
+                                     for d, h in full]}, index=full)
 
 
 def profile_schedule(profile: pd.DataFrame, year: int) -> pd.Series:
-    """The gain profile over the year's hours (hour-ending stamps, 8760 values)."""
+    """The gain profile over the year's hours (hour-ending stamps, 8760 values).
+
+    ``profile`` is indexed by ``day_of_week`` × ``hour`` (:func:`block_profile`).
+    """
     stamps = year_hours(year)
     start = stamps - pd.Timedelta(hours=1)
-    keys = pd.MultiIndex.from_arrays([(start.day_of_week >= 5).astype(int), start.hour])
+    keys = pd.MultiIndex.from_arrays([start.day_of_week, start.hour])
     return pd.Series(profile["profile"].reindex(keys).to_numpy(), index=stamps)
+
+
+def sky_diffuse_irradiance(config: Config) -> pd.Series:
+    """Hourly diffuse horizontal irradiance of the config's weather over its year, W/m².
+
+    The schedule of an aperture that sees the sky but no beam (a shaded or
+    north-light opening): the weather file's diffuse horizontal irradiance of
+    each hour (hour-ending stamps, :func:`year_hours`).
+    """
+    from bpsflow.weather import epw_rows, read_epw
+
+    epw = read_epw(Path(config.model.weather))
+    stamps = year_hours(config.model.year)
+    rows = epw_rows(stamps - pd.Timedelta(hours=1), epw.n_hours)
+    return pd.Series(np.asarray(epw.columns["diffuse_horizontal_radiation"][rows], dtype=float),
+                     index=stamps)
+

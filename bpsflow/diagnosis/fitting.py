@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -50,7 +50,7 @@ def parameter_range(parameter: Parameter) -> tuple[float, float]:
 
 def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, *,
                      backend: str, work_dir: Path, jobs: int | None = None,
-                     sequences_dir: Path | None = None) -> Simulator:
+                     sequences_dir: Path | None = None, on_failure: str = "raise") -> Simulator:
     """A :data:`Simulator` of ``output`` at ``timestamps`` (hour-ending) on ``backend``.
 
     The surrogate runs a batch in one vectorised call, reading the boundary
@@ -58,16 +58,47 @@ def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, 
     so simulators that share it do not draw them again). EnergyPlus runs
     each batch in a fresh run directory under ``work_dir`` (in parallel,
     ``jobs``).
+
+    ``on_failure``: ``"raise"`` (a failed instance raises
+    :class:`~bpsflow.simulation.ensemble.BatchFailure`) or ``"record"``: a
+    failed instance's row is NaN and its error is in the simulator's
+    ``failures`` (row position -> error excerpt, for the last batch; see
+    :class:`OutputSimulator`).
     """
-    from bpsflow.simulation.backend import get_backend
-    from bpsflow.simulation.ensemble import simulate_samples
+    if on_failure not in ("raise", "record"):
+        raise ValueError(f"on_failure: expected 'raise' or 'record', got {on_failure!r}")
+    return OutputSimulator(config, output, timestamps, backend=backend, work_dir=Path(work_dir),
+                           jobs=jobs, sequences_dir=sequences_dir,
+                           record=on_failure == "record")
 
-    work_dir = Path(work_dir)
-    simulator = get_backend(backend)
-    calls = {"n": 0}
 
-    def to_matrix(tidy: pd.DataFrame, labels: list) -> np.ndarray:
+class OutputSimulator:
+    """A :data:`Simulator` of one output on one backend (made by :func:`output_simulator`).
+
+    The failure signal, when ``record`` is on: a row of NaN in the returned
+    matrix, and ``failures[row position] = error excerpt`` for the last call
+    (:func:`fit_many` and :func:`bpsflow.diagnosis.signatures.signatures` read
+    both; any :data:`Simulator` may signal a failure by a NaN row alone).
+    """
+
+    def __init__(self, config: Config, output: str, timestamps: pd.DatetimeIndex, *,
+                 backend: str, work_dir: Path, jobs: int | None, sequences_dir: Path | None,
+                 record: bool):
+        from bpsflow.simulation.backend import get_backend
+
+        self.config, self.output, self.timestamps = config, output, timestamps
+        self.backend = get_backend(backend)
+        self.work_dir, self.jobs = Path(work_dir), jobs
+        self.sequences_dir = Path(sequences_dir or work_dir)
+        self.record = record
+        self.calls = 0
+        self.failures: dict[int, str] = {}
+
+    def to_matrix(self, tidy: pd.DataFrame, labels: list) -> np.ndarray:
+        output, timestamps = self.output, self.timestamps
         mine = tidy[tidy["output"] == output].drop_duplicates(["instance", "timestamp"])
+        if not len(mine):
+            return np.full((len(labels), len(timestamps)), np.nan)
         wide = mine.pivot(index="instance", columns="timestamp", values="value")
         wide.columns = pd.DatetimeIndex(wide.columns)
         missing = timestamps.difference(wide.columns)
@@ -76,14 +107,26 @@ def output_simulator(config: Config, output: str, timestamps: pd.DatetimeIndex, 
                              f"hour(s), first {missing[0]}")
         return wide.reindex(index=labels, columns=timestamps).to_numpy(dtype=float)
 
-    def simulate(samples: pd.DataFrame) -> np.ndarray:
-        calls["n"] += 1
+    def __call__(self, samples: pd.DataFrame) -> np.ndarray:
+        from bpsflow.simulation.ensemble import simulate_batch, simulate_samples
+
+        self.calls += 1
         # A vectorised backend simulates in this process and shares one folder of
         # boundary sequences; another runs each batch in a fresh folder.
-        tidy = simulate_samples(config, samples, work_dir / f"batch_{calls['n']:03d}", simulator,
-                                jobs=jobs, sequences_dir=Path(sequences_dir or work_dir))
-        return to_matrix(tidy, list(samples.index))
-    return simulate
+        workdir = self.work_dir / f"batch_{self.calls:03d}"
+        if not self.record:
+            tidy = simulate_samples(self.config, samples, workdir, self.backend, jobs=self.jobs,
+                                    sequences_dir=self.sequences_dir)
+            return self.to_matrix(tidy, list(samples.index))
+        outcome = simulate_batch(self.config, samples, workdir, self.backend, jobs=self.jobs,
+                                 sequences_dir=self.sequences_dir)
+        labels = list(samples.index)
+        matrix = np.array(self.to_matrix(outcome.tidy, labels), dtype=float)  # writable
+        self.failures = {row: outcome.failed[int(label)] for row, label in enumerate(labels)
+                         if int(label) in outcome.failed}
+        for row in self.failures:
+            matrix[row] = np.nan
+        return matrix
 
 
 @dataclass
@@ -100,6 +143,12 @@ class Fit:
     evaluations: int              # simulated instances (of the whole batch it ran in)
     seconds: float
     iterations: int = 0
+    failure: str = ""             # why the problem failed (its starting point did not run)
+    failed_trials: list[str] = field(default_factory=list)  # trial points that did not run
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.failure)
 
     @property
     def named(self) -> dict[str, float]:
@@ -136,12 +185,20 @@ def fit_many(simulate: Simulator, problems: list[Problem], *, max_iterations: in
     step (projected Levenberg–Marquardt). A problem stops when its objective
     decreases by less than ``tolerance`` (relative) or its step is below
     ``1e-5`` of the range.
+
+    A point that does not run (a NaN row from ``simulate``, with the error in
+    ``simulate.failures`` when it has one, see
+    :class:`OutputSimulator`) never aborts the batch: a failed trial point
+    (or one of its difference neighbours) is a rejected step (infinite cost,
+    more damping), and a problem whose starting point fails ends as failed
+    (:attr:`Fit.failure`, prediction NaN) while the others go on.
     """
     started = time.perf_counter()
     states = [_State(p) for p in problems]
     count = 0
 
-    def evaluate(requests: list[tuple[_State, np.ndarray]]) -> list[list[np.ndarray]]:
+    def evaluate(requests: list[tuple[_State, np.ndarray]]
+                 ) -> list[tuple[list[np.ndarray], str]]:
         nonlocal count
         rows, spans = [], []
         for state, x in requests:
@@ -150,22 +207,30 @@ def fit_many(simulate: Simulator, problems: list[Problem], *, max_iterations: in
             rows += [state.sample(point) for point in points]
         samples = pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance"))
         predicted = simulate(samples) if rows else np.zeros((0, 0))
+        errors = getattr(simulate, "failures", None) or {}
         count += len(rows)
         out, first = [], 0
-        for size in spans:
-            out.append(list(predicted[first:first + size]))
+        for (state, _), size in zip(requests, spans):
+            block = predicted[first:first + size]
+            bad = [first + i for i in range(size)
+                   if not np.isfinite(block[i][state.mask]).all()]
+            error = "" if not bad else (errors.get(bad[0]) or "non-finite output")
+            out.append((list(block), error))
             first += size
         return out
 
-    for state, result in zip(states, evaluate([(s, s.x) for s in states])):
-        state.take(state.x, result)
+    for state, (result, error) in zip(states, evaluate([(s, s.x) for s in states])):
+        if error:
+            state.fail(f"its starting point did not run: {error}")
+        else:
+            state.take(state.x, result)
     for _ in range(max_iterations):
         active = [s for s in states if not s.done]
         if not active:
             break
         trials = [(s, s.trial()) for s in active]
-        for (state, x), result in zip(trials, evaluate(trials)):
-            state.judge(x, result, tolerance)
+        for (state, x), (result, error) in zip(trials, evaluate(trials)):
+            state.judge(x, result, tolerance, error)
     seconds = time.perf_counter() - started
     return [s.fit(count, seconds) for s in states]
 
@@ -192,6 +257,8 @@ class _State:
         self.damping = 1e-3
         self.done = self.k == 0
         self.iterations = 0
+        self.failure = ""
+        self.failed_trials: list[str] = []
 
     def values(self, x: np.ndarray) -> np.ndarray:
         return self.lower + np.clip(x, 0.0, 1.0) * self.width
@@ -241,11 +308,24 @@ class _State:
         self.last_step = step
         return np.clip(self.x + step, 0.0, 1.0)
 
-    def judge(self, x: np.ndarray, predictions: list[np.ndarray], tolerance: float) -> None:
+    def fail(self, reason: str) -> None:
+        """End this problem as failed (its starting point did not run)."""
+        self.failure = reason
+        self.done = True
+        self.prediction = np.full(len(self.y), np.nan)
+        self.neighbour_predictions = [self.prediction] * self.k
+        self.cost = float("inf")
+
+    def judge(self, x: np.ndarray, predictions: list[np.ndarray], tolerance: float,
+              error: str = "") -> None:
         self.iterations += 1
-        r = self.residuals(predictions[0])
-        cost = float(r @ r)
         moved = float(np.max(np.abs(x - self.x))) if self.k else 0.0
+        if error:  # a point that did not run is a rejected step, never the end of the batch
+            self.failed_trials.append(error)
+            cost = float("inf")
+        else:
+            r = self.residuals(predictions[0])
+            cost = float(r @ r)
         if cost < self.cost:
             decrease = (self.cost - cost) / max(self.cost, 1e-300)
             self.take(x, predictions)
@@ -265,12 +345,16 @@ class _State:
         error = self.y[self.mask] - self.prediction[self.mask]
         residual_std = float(np.sqrt(np.sum(error ** 2) / max(self.n_cal - self.k, 1)))
         j_cal = jac[self.mask]
-        covariance = residual_std ** 2 * np.linalg.pinv(j_cal.T @ j_cal) if self.k \
-            else np.zeros((0, 0))
+        if self.failure:
+            covariance = np.full((self.k, self.k), np.nan)
+        else:
+            covariance = residual_std ** 2 * np.linalg.pinv(j_cal.T @ j_cal) if self.k \
+                else np.zeros((0, 0))
         return Fit(parameters=list(self.problem.parameters), values=self.values(self.x),
                    prediction=self.prediction, jacobian=jac, covariance=covariance,
                    residual_std=residual_std, objective=self.cost, evaluations=evaluations,
-                   seconds=seconds, iterations=self.iterations)
+                   seconds=seconds, iterations=self.iterations, failure=self.failure,
+                   failed_trials=list(self.failed_trials))
 
 
 def predictive_ensemble(fit: Fit, size: int, random_state: int = 0) -> np.ndarray:

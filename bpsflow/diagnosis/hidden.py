@@ -73,6 +73,58 @@ OtherEquipment,
 Schedule:File,
     {schedule}, , {file}, 1, 0, 8760, Comma, No, 60, No;
 """,
+    "weekend_gain": """
+OtherEquipment,
+    {object}, None, {zone}, {schedule}, EquipmentLevel,
+    {value},                 !- Design Level {W}
+    , , 0, 0, 0;
+Schedule:Compact,
+    {schedule}, ,
+    Through: 12/31,
+    For: Weekends, Until: 10:00, 0, Until: 16:00, 1, Until: 24:00, 0,
+    For: AllOtherDays, Until: 24:00, 0;
+""",
+    "radiant_evening_gain": """
+OtherEquipment,
+    {object}, None, {zone}, {schedule}, EquipmentLevel,
+    {value},                 !- Design Level {W}
+    , , 0,
+    0.5,                     !- Fraction Radiant
+    0;
+Schedule:Compact,
+    {schedule}, ,
+    Through: 12/31,
+    For: Weekdays, Until: 17:00, 0, Until: 22:00, 1, Until: 24:00, 0,
+    For: AllOtherDays, Until: 24:00, 0;
+""",
+    "wind_squared_infiltration": """
+ZoneInfiltration:DesignFlowRate,
+    {object}, {zone}, {schedule}, Flow/Zone,
+    {value},                 !- Design Flow Rate {m3/s} per (m/s)2 of wind
+    , , ,
+    0, 0, 0, 1;              !- A, B, C, D (wind squared)
+Schedule:Constant, {schedule}, , 1;
+""",
+    "temperature_infiltration": """
+ZoneInfiltration:DesignFlowRate,
+    {object}, {zone}, {schedule}, Flow/Zone,
+    {value},                 !- Design Flow Rate {m3/s} per K of indoor-outdoor difference
+    , , ,
+    0, 1, 0, 0;              !- A, B (|dT|), C, D
+Schedule:Constant, {schedule}, , 1;
+""",
+    "heavy_mass": """
+Material,
+    {object}_material, MediumRough,
+    0.2,                     !- Thickness (m)
+    1.0, 1800, 1000,         !- Conductivity {W/m-K}, Density {kg/m3}, Specific Heat {J/kg-K}
+    0.9, 0.65, 0.65;
+Construction, {object}_construction, {object}_material;
+InternalMass,
+    {object}, {object}_construction, {zone}, ,
+    {value};                 !- Surface Area {m2}
+SurfaceProperty:ConvectionCoefficients, {object}, Inside, Value, 3.0;
+""",
 }
 
 #: The CSV the east aperture's ``Schedule:File`` reads (written next to the snippet).
@@ -80,18 +132,28 @@ EAST_IRRADIANCE_FILE = "hidden_east_irradiance.csv"
 
 #: The drivers a correct diagnosis may name for each effect, and the extension it must choose.
 EXPECTED: dict[str, tuple[tuple[str, ...], str]] = {
-    "wind_infiltration": (("wind_speed",), "infiltration_wind"),
-    "constant_infiltration": (("outdoor_air_temperature",), "envelope_ua"),
+    "wind_infiltration": (("wind_speed",), "infiltration"),
+    "constant_infiltration": (("outdoor_air_temperature",), "infiltration"),
     "office_gain": (("hour_of_day", "weekend"), "internal_gain_schedule"),
     "east_aperture": (("incident_solar_east",), "solar_aperture"),
+    "weekend_gain": (("weekend", "hour_of_day"), "internal_gain_schedule"),
+    "radiant_evening_gain": (("hour_of_day", "weekend"), "internal_gain_schedule"),
+    "wind_squared_infiltration": (("wind_speed",), "infiltration"),
+    "temperature_infiltration": (("outdoor_air_temperature",), "infiltration"),
+    "heavy_mass": (("hour_of_day", "outdoor_air_temperature"), "thermal_mass"),
 }
 
 #: The extension parameter that measures each effect's size (same units as the effect's value).
 MEASURE: dict[str, str] = {
-    "wind_infiltration": "infiltration_wind_m3s_per_ms",
-    "constant_infiltration": "extra_conductance_m3s",
+    "wind_infiltration": "infiltration_c_m3s_per_ms",
+    "constant_infiltration": "infiltration_a_m3s",
     "office_gain": "scheduled_gain_w",
     "east_aperture": "solar_aperture_m2",
+    "weekend_gain": "scheduled_gain_w",
+    "radiant_evening_gain": "scheduled_gain_w",
+    "wind_squared_infiltration": "infiltration_d_m3s_per_m2s2",
+    "temperature_infiltration": "infiltration_b_m3s_per_k",
+    "heavy_mass": "internal_mass_area_m2",
 }
 
 
@@ -139,7 +201,8 @@ def render_effect(effect: str, value: float, model: IdfModel, zone: str) -> str:
 def write_truth(base_config: Path, directory: Path, effect: str | None, value: float,
                 parameter_values: dict[str, float], *, seed: int, noise_bound: float = 0.03,
                 autocorrelation: float = 0.8, output: str = "heating_power_w",
-                zone: str | None = None) -> tuple[Path, Path]:
+                zone: str | None = None,
+                more_effects: tuple[tuple[str, float], ...] = ()) -> tuple[Path, Path]:
     """Write the truth config (base + hidden effect) and the synth truth file.
 
     ``noise_bound`` is 3 standard deviations of the relative sensor noise of
@@ -160,11 +223,21 @@ def write_truth(base_config: Path, directory: Path, effect: str | None, value: f
         model = model_objects(config.model)
         if zone is None:
             zone = diagnosis_zone(config, output, EXPECTED[effect][1], model)
-        snippet = directory / "hidden_effect.idf"
-        write_text_atomic(snippet, render_effect(effect, value, model, zone))
-        raw["model"] = {"idf_objects": [snippet.name]}
-        if effect == "east_aperture":
-            _write_east_irradiance(config, directory)
+        snippets = []
+        for number, (name, size) in enumerate(((effect, value), *more_effects)):
+            snippet = directory / f"hidden_effect{number or ''}.idf"
+            text = render_effect(name, size, model, zone)
+            write_text_atomic(snippet, text)
+            snippets.append(snippet.name)
+            # the next effect's names must avoid this one's too (a copy: the parsed
+            # model is cached)
+            from bpsflow.simulation.idf import IdfModel, parse_idf_text
+
+            model = IdfModel(model.path, [*model.objects,
+                                          *parse_idf_text(text, snippet).objects])
+            if name == "east_aperture":
+                _write_east_irradiance(config, directory)
+        raw["model"] = {"idf_objects": snippets}
     config_path = directory / "truth_config.yaml"
     write_text_atomic(config_path, yaml.safe_dump(raw, sort_keys=False))
     truth_path = directory / "truth_values.yaml"
@@ -187,7 +260,8 @@ def _write_east_irradiance(config: Config, directory: Path) -> None:
 def make_case(base_config: Path, directory: Path, effect: str | None, value: float = 0.0,
               parameter_values: dict[str, float] | None = None, *, seed: int = 0,
               backend: str = "surrogate", noise_bound: float = 0.03,
-              autocorrelation: float = 0.8, zone: str | None = None) -> HiddenCase:
+              autocorrelation: float = 0.8, zone: str | None = None,
+              more_effects: tuple[tuple[str, float], ...] = ()) -> HiddenCase:
     """Write the truth model and synthesise its measurements (``directory/run/truth``).
 
     ``zone``: the zone the effect acts on (default: see :func:`write_truth`).
@@ -197,7 +271,8 @@ def make_case(base_config: Path, directory: Path, effect: str | None, value: flo
     parameter_values = dict(parameter_values or {})
     config_path, truth_path = write_truth(base_config, directory, effect, value,
                                           parameter_values, seed=seed, noise_bound=noise_bound,
-                                          autocorrelation=autocorrelation, zone=zone)
+                                          autocorrelation=autocorrelation, zone=zone,
+                                          more_effects=more_effects)
     config = load_config(config_path)
     truth = load_truth(truth_path, config)
     out = Path(directory) / "run" / "truth"

@@ -65,7 +65,9 @@ def diagnosis_record(d: Diagnosis) -> dict:
     return {
         "verdict": d.verdict,
         "cause": {**{k: d.cause.get(k) for k in ("driver", "parameter", "extension")},
-                  "summary": cause_summary(d)},
+                  "summary": cause_summary(d),
+                  **{k: d.cause[k] for k in ("confidence", "runner_up", "unexplained")
+                     if d.cause.get(k) is not None}},
         "drivers": first["drivers"],
         "extensions": [{"name": e["name"], "fitted": e["fitted"], "heldout": e["heldout"],
                         "accepted": bool(e.get("accepted", False)),
@@ -83,6 +85,8 @@ def diagnosis_record(d: Diagnosis) -> dict:
         "parameter_fit": d.parameter_fit,
         "rounds": d.rounds,
         "seconds": d.seconds,
+        "seconds_per_step": d.timings,
+        "notes": d.notes,
     }
 
 
@@ -99,13 +103,32 @@ def write_diagnosis(d: Diagnosis, out_dir: Path) -> dict[str, Path]:
     record = diagnosis_record(d)
     paths = {"json": out_dir / JSON_FILE, "markdown": out_dir / MARKDOWN_FILE,
              "residuals": out_dir / RESIDUALS_FILE}
-    write_text_atomic(paths["json"], json.dumps(record, indent=2, default=_jsonable))
+    write_text_atomic(paths["json"], _dumps(record))
     write_csv(residuals_table(d), paths["residuals"])
-    paths.update(write_figures(d, figures))
+    try:
+        paths.update(write_figures(d, figures))
+    except Exception as exc:  # diagnosis.json is written; a figure never takes the report down
+        d.notes.append(f"the figures could not all be drawn: {type(exc).__name__}: {exc}")
+        write_text_atomic(paths["json"], _dumps(diagnosis_record(d)))
     write_text_atomic(paths["markdown"], markdown(d, record, {k: v.relative_to(out_dir)
                                                             for k, v in paths.items()
                                                             if v.suffix == ".png"}))
     return paths
+
+
+def _dumps(record: dict) -> str:
+    """Strict JSON: a non-finite number (the objective of a fit that did not run) is null."""
+    def finite(value):
+        if isinstance(value, dict):
+            return {k: finite(v) for k, v in value.items()}
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        if isinstance(value, (list, tuple)):
+            return [finite(v) for v in value]
+        if isinstance(value, (float, np.floating)) and not np.isfinite(value):
+            return None
+        return value
+    return json.dumps(finite(record), indent=2, default=_jsonable, allow_nan=False)
 
 
 def _jsonable(value):
@@ -270,20 +293,43 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
                          f"{left} |")
     if d.extensions:
         lines += ["", "## Candidate extensions", "",
-                  "| round | extension | driver | fitted | held-out CV(RMSE) before → after | "
-                  "nMCRPS before → after | loss-difference p | BIC before → after | accepted |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "Ranked per round by BIC on the calibration hours; the best "
+                  f"{settings_of(d.base.config).cv_candidates} are cross-validated over "
+                  "whole-week folds (out-of-fold CV(RMSE), loss-difference p).", "",
+                  "| round | rank | cause | driver | fitted | out-of-fold CV(RMSE) before → after "
+                  "| held-out CV(RMSE) before → after | loss-difference p | BIC before → after "
+                  "| accepted |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for e in d.extensions:
-            h = e["heldout"]
+            h, cv, test = e["heldout"], e.get("cross_validation"), e.get("loss_difference")
+            fitted = e.get("law") or ", ".join(f"{k} = {v:.4g}" for k, v in e["fitted"].items())
             lines.append(
-                f"| {e['round']} | {_extension_label(e)} | {e['driver']} | "
-                f"{', '.join(f'{k} = {v:.4g}' for k, v in e['fitted'].items())} | "
-                f"{h['before']['cvrmse']:.2%} → {h['after']['cvrmse']:.2%} | "
-                f"{h['before']['nmcrps']:.2%} → {h['after']['nmcrps']:.2%} | "
-                f"{e['loss_difference']['p_value']:.2g} | {e['bic']['before']:.0f} → "
-                f"{e['bic']['after']:.0f} | {'**yes**' if e.get('accepted') else 'no'} |")
+                f"| {e['round']} | {e.get('rank', '-')} | {_extension_label(e)} | {e['driver']} "
+                f"| {fitted} | "
+                + (f"{cv['cvrmse_before']:.2%} → {cv['cvrmse_after']:.2%}" if cv else "-")
+                + f" | {h['before']['cvrmse']:.2%} → {h['after']['cvrmse']:.2%} | "
+                + (f"{test['p_value']:.2g}" if test else "-")
+                + f" | {e['bic']['before']:.0f} → "
+                + (f"{e['bic']['after']:.0f}" if e["bic"]["after"] is not None
+                   else f"(screen {e.get('screen_bic', float('nan')):.0f})")
+                + f" | {'**yes**' if e.get('accepted') else 'no'} |")
+        for e in d.extensions:
+            if e.get("accepted") and e.get("runner_up"):
+                r = e["runner_up"]
+                lines += ["", f"Round {e['round']}: {e.get('cause', e['name'])} over the "
+                              f"runner-up {r['cause']} by ΔBIC = {r['delta_bic']:.1f} "
+                              f"({r['evidence']}; BIC weight {e['confidence']:.2f})."]
+            if e.get("accepted") and e.get("term_selection"):
+                terms = "; ".join(f"{' + '.join(t['terms'])}: {t['bic']:.0f}"
+                                  for t in e["term_selection"][:4])
+                lines += ["", f"Law terms chosen by BIC (best first): {terms}."]
+        if d.unexplained:
+            lines += ["", "Structure no candidate explains: " + ", ".join(d.unexplained)
+                      + " (see the residual heatmap and the autocorrelation plot)."]
     elif untried_reason(d) is not None:
         lines += ["", "## Candidate extensions", "", f"None tried: {untried_reason(d)}."]
+    if d.notes:
+        lines += ["", "## Notes", ""] + [f"- {note}" for note in d.notes]
     lines += ["", "## Figures", ""]
     for name, path in figures.items():
         lines.append(f"![{name}]({path.as_posix()})")
@@ -296,4 +342,5 @@ def _extension_label(entry: dict) -> str:
     if entry.get("facade"):
         surfaces = ", ".join(entry.get("surfaces") or []) or "compass plane"
         where.append(f"{entry['facade']} facade: {surfaces}")
-    return f"{entry['name']} ({'; '.join(where)})" if where else entry["name"]
+    name = entry.get("cause", entry["name"])
+    return f"{name} ({'; '.join(where)})" if where else name

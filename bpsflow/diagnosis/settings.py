@@ -7,13 +7,18 @@ config without the section diagnoses its first measured output::
       output: heating_power_w     # the measured output whose residuals are analysed
       holdout_days: 7             # the last days: never fitted, the gain is measured there
       alpha: 0.01                 # family-wise level of the driver tests (Holm)
+      candidate_alpha: 0.05       # drivers below this still call candidates (cross-validated)
       min_share: 0.05             # a driver must explain this share of residual variance
       min_amplitude: 0.01         # ... and move the output by this fraction of its mean
       plausible_change: 0.5       # relative change of a fixed parameter still "plausible"
-      extensions: [infiltration_wind, internal_gain_schedule, solar_aperture, envelope_ua]
+      extensions: [infiltration, internal_gain_schedule, solar_aperture, thermal_mass]
       zone: null                  # the zone the extensions are written for (see below)
       extension_zones: {}         # per extension, e.g. {solar_aperture: Office_East}
-      max_rounds: 3               # extend, re-diagnose, at most this many times
+      max_rounds: 4               # extend, re-diagnose, at most this many times
+      days_per_fold: 7            # cross-validation folds: blocks of whole days (a week)
+      cv_candidates: 3            # causes cross-validated per round (the best by BIC)
+      cv_iterations: 6            # refit steps per fold, from the calibration fit
+      cv_refit: null              # simulated | linearised (default: simulated on the surrogate)
 
 ``extensions: []`` switches the candidate extensions off: the diagnosis still
 tests the residuals and checks the existing parameters, and says that no
@@ -27,16 +32,17 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 #: The extensions implemented on both backends (bpsflow/diagnosis/extensions.py). The
-#: brief also names thermal_mass and stratification: the first needs an InternalMass
-#: that EnergyPlus cannot nest at zero area; the model's stratification is already an
-#: input (stratification_gradient, return_air_offset), so a mis-valued one is a
-#: ``parameter`` verdict.
+#: model's stratification is already an input (stratification_gradient,
+#: return_air_offset), so a mis-valued one is a ``parameter`` verdict.
 ExtensionName = Literal["infiltration_wind", "internal_gain_schedule", "solar_aperture",
-                        "envelope_ua"]
+                        "envelope_ua", "infiltration", "thermal_mass"]
 
-#: Every extension, in the order they are tried (the default of ``extensions``).
-ALL_EXTENSIONS: list[ExtensionName] = ["infiltration_wind", "internal_gain_schedule",
-                                       "solar_aperture", "envelope_ua"]
+#: The default candidate families. ``infiltration`` fits the whole
+#: ZoneInfiltration:DesignFlowRate law (A + B·|ΔT| + C·V + D·V², terms by BIC), so the
+#: one-term ``infiltration_wind`` (C) and ``envelope_ua`` (A) are only tried when a
+#: config lists them.
+ALL_EXTENSIONS: list[ExtensionName] = ["infiltration", "internal_gain_schedule",
+                                       "solar_aperture", "thermal_mass"]
 
 
 class DiagnosisSettings(BaseModel):
@@ -87,10 +93,15 @@ class DiagnosisSettings(BaseModel):
     folds: int = Field(default=4, ge=2)
     plausible_change: float = Field(default=0.5, gt=0)
     gain_alpha: float = Field(default=0.05, gt=0, lt=1)
+    candidate_alpha: float = Field(default=0.05, gt=0, lt=1)
     extensions: list[ExtensionName] = Field(default_factory=lambda: list(ALL_EXTENSIONS))
     zone: str | None = Field(default=None, min_length=1)
     extension_zones: dict[ExtensionName, str] = Field(default_factory=dict)
-    max_rounds: int = Field(default=3, ge=1)
+    max_rounds: int = Field(default=4, ge=1)
+    days_per_fold: int = Field(default=7, ge=1)
+    cv_candidates: int = Field(default=3, ge=1)
+    cv_iterations: int = Field(default=6, ge=1)
+    cv_refit: Literal["simulated", "linearised"] | None = None
     gain_blocks: int = Field(default=4, ge=1)
     parameter_candidates: int = Field(default=3, ge=1)
     suspects: list[str] | None = None

@@ -11,16 +11,24 @@ the residual, and its share of the residual variance says how much it
 explains. A change is plausible when it stays within the parameter's
 plausible range: its distribution's 1–99 % quantiles, or ± ``plausible_change``
 (relative) around a fixed value.
+
+One bad run never stops the step. The plausible range is first clipped to
+what EnergyPlus accepts in the fields the parameter sets (the IDD's bounds
+and a glazing's T + R < 1, with the other parameters at their values:
+:func:`physical_range`), so a perturbation is clipped before it runs and the
+signature is divided by the change actually made. A run that still fails is
+retried once at half the change, then left out; each of these is a note.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from bpsflow.config import BoundaryTarget, Parameter
+from bpsflow.config import BoundaryTarget, Config, Parameter
 from bpsflow.diagnosis.fitting import Simulator
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 
@@ -33,6 +41,8 @@ class Candidate:
     nominal: float
     lower: float
     upper: float
+    #: the plausible half-width before :func:`physical_range` clipped ``lower``/``upper``
+    half_width: float | None = None
 
 
 @dataclass
@@ -82,26 +92,174 @@ def candidate_parameters(parameters: list[Parameter], fitted: list[str],
     return out
 
 
+def _refusal(config: Config, sample: dict[str, float], name: str, value: float,
+             entries: list | None = None) -> str | None:
+    """Why EnergyPlus would refuse ``sample`` with ``name = value`` (``None``: it accepts it)."""
+    from bpsflow.errors import BpsflowError
+    from bpsflow.simulation.target_bounds import check_sample_values
+
+    row = pd.DataFrame([{**sample, name: value}], index=pd.Index([0], name="instance"))
+    try:
+        check_sample_values(config, row, "the perturbed value", entries)
+    except BpsflowError as exc:
+        reason = re.sub(r"; \d+ of \d+ instances alike", "", exc.message)
+        return reason.split(") sets ", 1)[-1] if ") sets " in reason else reason
+    return None
+
+
+def physical_range(config: Config, sample: dict[str, float], name: str, lower: float,
+                   upper: float, *, tolerance: float = 1e-9, margin: float = 1e-6
+                   ) -> tuple[float, float, list[str]]:
+    """``[lower, upper]`` clipped to the values of ``name`` EnergyPlus accepts at ``sample``.
+
+    The fields a parameter sets move monotonically with it (absolute,
+    additive or relative mode; :func:`bpsflow.simulation.targets.apply_mode`),
+    so the accepted values around the sample's value form an interval; each
+    end that EnergyPlus would refuse (:func:`bpsflow.simulation.target_bounds
+    .check_sample_values`: the IDD's minimum/maximum, a glazing's T + R < 1)
+    is moved, by bisection, to the last accepted value, then ``margin``
+    (relative to the distance moved) back inside.
+
+    Parameters
+    ----------
+    config : Config
+    sample : dict
+        Every parameter's value (the other parameters stay there).
+    name : str
+        The parameter whose range is clipped; ``sample[name]`` must be accepted.
+    lower, upper : float
+        The range to clip (the parameter's units).
+
+    Returns
+    -------
+    lower, upper : float
+        The clipped range (equal to the sample's value on a side with no room).
+    notes : list of str
+        One per clipped end: the value asked, the value kept and why.
+    """
+    from bpsflow.simulation.target_bounds import targeted_fields
+
+    entries = [e for e in targeted_fields(config)
+               if any(p.name == name for p in e.parameters)]
+    if not entries:
+        return lower, upper, []      # no IDF field: nothing EnergyPlus could refuse
+
+    def refusal(value: float) -> str | None:
+        return _refusal(config, sample, name, value, entries)
+
+    centre = float(sample[name])
+    if refusal(centre) is not None:
+        return centre, centre, [f"{name}: its current value {centre:.6g} is already refused "
+                                f"by EnergyPlus ({refusal(centre)})"]
+    ends, notes = [], []
+    for end in (lower, upper):
+        if refusal(end) is None:
+            ends.append(end)
+            continue
+        inside, outside = 0.0, 1.0     # fractions of the way from the centre to ``end``
+        while outside - inside > tolerance:
+            middle = 0.5 * (inside + outside)
+            if refusal(centre + middle * (end - centre)) is None:
+                inside = middle
+            else:
+                outside = middle
+        # the limit that binds first (e.g. T + R < 1 before the IDD's T <= 1)
+        reason = refusal(centre + outside * (end - centre))
+        kept = centre + inside * (1.0 - margin) * (end - centre)
+        ends.append(kept)
+        notes.append(f"{name}: {end:.6g} clipped to {kept:.6g} ({end - centre:+.4g} -> "
+                     f"{kept - centre:+.4g} from {centre:.6g}), the limit of what EnergyPlus "
+                     f"accepts (beyond it, the run would set {reason})")
+    return ends[0], ends[1], notes
+
+
+def clip_to_physical(config: Config, sample: dict[str, float], candidates: list[Candidate],
+                     notes: list[str] | None = None) -> list[Candidate]:
+    """Candidates with their plausible range clipped by :func:`physical_range`.
+
+    A candidate left with no room on either side is dropped; both are noted
+    in ``notes``.
+    """
+    out = []
+    for c in candidates:
+        name = c.parameter.name
+        lower, upper, clipped = physical_range(config, {**sample, name: c.nominal}, name,
+                                               c.lower, c.upper)
+        if notes is not None:
+            notes.extend(f"parameter {note}" for note in clipped)
+        if not upper > lower:
+            if notes is not None:
+                notes.append(f"parameter {name} left out of the signatures: no change of it "
+                             f"within its plausible range is accepted by EnergyPlus")
+            continue
+        out.append(Candidate(c.parameter, c.nominal, lower, upper,
+                             half_width=(c.upper - c.lower) / 2))
+    return out
+
+
+def _step(c: Candidate, fraction: float) -> float:
+    """``fraction`` of the plausible half-range, towards the side with more room, clipped."""
+    half = c.half_width if c.half_width is not None else (c.upper - c.lower) / 2
+    step = fraction * half
+    room_up, room_down = c.upper - c.nominal, c.nominal - c.lower
+    if room_up >= step:
+        return step
+    if room_down >= step:
+        return -step
+    return room_up if room_up >= room_down else -room_down
+
+
 def signatures(simulate: Simulator, sample: dict[str, float], candidates: list[Candidate],
-               prediction: np.ndarray, fraction: float = 0.2) -> list[Signature]:
+               prediction: np.ndarray, fraction: float = 0.2,
+               notes: list[str] | None = None) -> list[Signature]:
     """Perturbation responses of each candidate (one batch of ``len(candidates)`` runs).
 
     Each candidate moves by ``fraction`` of its plausible half-range, towards
-    the side with room; ``prediction`` is the unperturbed model at ``sample``.
+    the side with room, clipped to its range (see :func:`clip_to_physical`);
+    the response is divided by the change actually made. ``prediction`` is
+    the unperturbed model at ``sample``. A run that fails (a NaN row, the
+    failure signal of :class:`~bpsflow.diagnosis.fitting.OutputSimulator`)
+    is retried once at half its change in a second batch, then left out;
+    clipped-to-nothing and left-out candidates are noted in ``notes``.
     """
-    if not candidates:
-        return []
-    rows, steps = [], []
-    for c in candidates:
-        step = fraction * (c.upper - c.lower) / 2
-        if c.nominal + step > c.upper:
-            step = -step
-        row = dict(sample)
-        row[c.parameter.name] = c.nominal + step
-        rows.append(row)
-        steps.append(step)
-    predicted = simulate(pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance")))
-    return [Signature(c, (p - prediction) / s) for c, p, s in zip(candidates, predicted, steps)]
+    steps = {}
+    for index, c in enumerate(candidates):
+        step = _step(c, fraction)
+        if step == 0.0:
+            if notes is not None:
+                notes.append(f"parameter {c.parameter.name} left out of the signatures: its "
+                             f"change is clipped to zero")
+            continue
+        steps[index] = step
+    found: dict[int, Signature] = {}
+    errors: dict[int, str] = {}
+    for attempt in range(2):
+        todo = [i for i in steps if i not in found]
+        if not todo:
+            break
+        rows = [{**sample, candidates[i].parameter.name: candidates[i].nominal + steps[i]}
+                for i in todo]
+        predicted = simulate(pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance")))
+        failures = getattr(simulate, "failures", None) or {}
+        for row, i in enumerate(todo):
+            if np.isfinite(predicted[row]).all():
+                found[i] = Signature(candidates[i], (predicted[row] - prediction) / steps[i])
+                continue
+            errors[i] = failures.get(row) or "non-finite output"
+            if attempt == 0:
+                steps[i] /= 2     # retried once, closer to the running value
+    for i in steps:
+        if i not in found and notes is not None:
+            name = candidates[i].parameter.name
+            notes.append(f"parameter {name} left out of the signatures: its run failed twice "
+                         f"(change {2 * steps[i]:+.4g}, then {steps[i]:+.4g}): "
+                         f"{_excerpt(errors.get(i, ''))}")
+    return [found[i] for i in sorted(found)]
+
+
+def _excerpt(error: str, size: int = 300) -> str:
+    text = " ".join(str(error).split())
+    return text if len(text) <= size else text[:size] + " ..."
 
 
 def explain(residual: np.ndarray, fitted_jacobian: np.ndarray,

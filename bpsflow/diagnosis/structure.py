@@ -50,6 +50,7 @@ def basis(name: str, drivers: pd.DataFrame,
     * ``hour_of_day``: ``sin`` and ``cos`` of ``2πkh/24``, k = 1..3 (a daily
       profile of width down to ~4 h);
     * ``weekend``: the 0/1 dummy;
+    * ``day_of_week``: a 0/1 dummy per day but the first (an effect on one day);
     * irradiance (W/m²) and other measured columns: the driver (linear);
     * wind (m/s): the wind speed and, when the indoor temperature is given,
       ``wind × (T_in − T_out)`` (m/s·K): infiltration driven by wind carries
@@ -84,6 +85,10 @@ def basis(name: str, drivers: pd.DataFrame,
             angle = 2 * np.pi * k * x / 24.0
             columns[f"{name}_sin{k}"] = np.sin(angle)
             columns[f"{name}_cos{k}"] = np.cos(angle)
+    elif group == "day":
+        # one dummy per day of the week but the first present (the reference)
+        for day in np.unique(x[np.isfinite(x)])[1:]:
+            columns[f"{name}_is_{int(day)}"] = (x == day).astype(float)
     elif group == "wind":
         columns[name] = x
         if indoor_temperature_c is not None:

@@ -17,13 +17,24 @@ Four steps (DESIGN.md §8; seed §1.1.1.1, §2.1, §4.3.1):
    structure is gone after that change, the verdict is ``parameter``.
    Otherwise ``model_form``, and the significant drivers name candidate
    extensions. No significant driver: ``none`` — no cause is invented.
-4. **Extend and measure.** Each candidate (:mod:`bpsflow.diagnosis.extensions`)
-   is fitted together with the existing parameters on the calibration hours
-   and scored on the held-out block; it is accepted only if the held-out
-   loss difference is significant (Diebold–Mariano with HAC variance), its
-   BIC is lower and its held-out CV(RMSE) is lower. The best accepted one
-   becomes the model, which is diagnosed again, until nothing significant
-   is left or ``max_rounds``.
+4. **Extend and measure.** Every family the significant drivers' groups
+   call (:data:`FAMILY_GROUPS`: irradiance and time-of-day structure call
+   the scheduled gain and an aperture on every face, since the sun follows
+   the clock) is written as candidate causes (:func:`candidate_causes`),
+   each with its shapes (gain blocks by day type and hours, aperture faces,
+   law terms). A linearised screen ranks them all from one run per new
+   parameter (:func:`_screen`); the ``cv_candidates`` best causes are fitted
+   together with the existing parameters on the calibration hours (a law's
+   terms then chosen by BIC, :func:`_choose_terms`; a gain block's edges
+   refined). A cause is accepted when, over whole-week folds of the whole
+   period (:mod:`bpsflow.diagnosis.crossval`), its out-of-fold errors are
+   significantly smaller than the current model's (Diebold–Mariano, HAC,
+   fixed-b), its BIC is lower and its out-of-fold CV(RMSE) is lower; the
+   accepted cause with the lowest BIC becomes the model, and its runner-up
+   and their BIC difference are reported. The extended model is diagnosed
+   again (a law already in it re-opened with all its terms free), until
+   nothing significant is left, nothing passes, or ``max_rounds``;
+   structure left that no candidate explains is reported as such.
 """
 
 from __future__ import annotations
@@ -37,18 +48,18 @@ import numpy as np
 import pandas as pd
 
 from bpsflow.config import Config, Parameter
-from bpsflow.diagnosis import comparison, structure
+from bpsflow.diagnosis import comparison, crossval, structure
 from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (
     EXTENSIONS,
     block_profile,
-    candidates_for,
     diagnosis_zone,
     extend_config,
     facade_irradiance,
-    facade_of,
     gain_blocks,
+    law_text,
     profile_schedule,
+    sky_diffuse_irradiance,
 )
 from bpsflow.diagnosis.fitting import (
     Fit,
@@ -60,8 +71,15 @@ from bpsflow.diagnosis.fitting import (
     scores,
 )
 from bpsflow.diagnosis.settings import DiagnosisSettings
-from bpsflow.diagnosis.signatures import candidate_parameters, explain, signatures
+from bpsflow.diagnosis.signatures import (
+    candidate_parameters,
+    clip_to_physical,
+    explain,
+    signatures,
+)
 from bpsflow.errors import BpsflowError
+from bpsflow.simulation.backend import get_backend
+from bpsflow.simulation.ensemble import BatchFailure
 
 Announce = Callable[[str], None]
 
@@ -102,9 +120,13 @@ class Diagnosis:
     parameter_check: list[dict] = field(default_factory=list)
     gain: dict = field(default_factory=dict)
     parameter_fit: dict | None = None
+    unexplained: list[str] = field(default_factory=list)   # drivers no candidate explains
     final_scores: dict = field(default_factory=dict)
     seconds: float = 0.0
     backend: str = "surrogate"
+    timings: dict[str, float] = field(default_factory=dict)   # s per batch of fits, by label
+    #: what could not be done as asked (clipped perturbations, runs left out, a failed step)
+    notes: list[str] = field(default_factory=list)
 
 
 def settings_of(config: Config) -> DiagnosisSettings:
@@ -237,16 +259,34 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
              f"{int((~data[0].calibration).sum())} held out)"
              + (f", {len(data)} datasets" if len(data) > 1 else ""))
     started = time.perf_counter()
-    fits = context.fit(config, "base", [Problem(context.sample_of(config), fitted, d.y,
-                                                d.calibration) for d in data])
+    try:
+        fits = context.fit(config, "base", [Problem(context.sample_of(config), fitted, d.y,
+                                                    d.calibration) for d in data])
+    except Exception as exc:
+        if isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure):
+            raise
+        message = exc.message if isinstance(exc, BpsflowError) else f"{type(exc).__name__}: {exc}"
+        raise BpsflowError(f"diagnose: the fit of the existing parameters failed, so there is "
+                           f"nothing to diagnose: {_excerpt(message)}",
+                           source=config.source) from exc
     shared = time.perf_counter() - started
+    if any(fit.failed for fit in fits):
+        # nothing to diagnose without a fitted model: the one case that writes nothing
+        raise BpsflowError(f"diagnose: the fit of the existing parameters failed, so there is "
+                           f"nothing to diagnose: "
+                           f"{_excerpt(next(f for f in fits if f.failed).failure)}",
+                           source=config.source)
+    shared_notes = list(context.notes)
     results = []
     for d, fit, out_dir in zip(data, fits, out_dirs):
         started = time.perf_counter()
         context.data, context.out_dir = d, Path(out_dir)
+        context.notes = list(shared_notes)
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         results.append(_diagnose_one(context, Model(config, fitted, fit, "base"), announce))
         results[-1].seconds = time.perf_counter() - started + shared
+        results[-1].timings = {k: round(v, 2) for k, v in context.timings.items()}
+        context.timings = {}
     return results
 
 
@@ -257,11 +297,21 @@ class _Context:
                  jobs: int | None, out_dir: Path, step: Callable[[str], None]):
         self.config, self.data, self.settings = config, data, settings
         self.backend, self.jobs, self.out_dir, self.step = backend, jobs, out_dir, step
+        self.round_number = 0
+        #: wall time of each batch of fits (s), by label, for the report
+        self.timings: dict[str, float] = {}
+        #: out-of-fold predictions of a model, by (label, round): shared by its candidates
+        self.oof_cache: dict[tuple[str, int], np.ndarray] = {}
+        self.notes: list[str] = []       # Diagnosis.notes of the dataset under diagnosis
+        self.stage = "base"              # the last batch started (named in a failure note)
 
     def simulator(self, config: Config, label: str):
+        # a failed run is a NaN row, never an exception (fit_many, signatures handle it)
+        self.stage = label
         return output_simulator(config, self.data.output, self.data.timestamps,
                                 backend=self.backend, work_dir=self.out_dir / "runs" / label,
-                                jobs=self.jobs, sequences_dir=self.out_dir / "runs")
+                                jobs=self.jobs, sequences_dir=self.out_dir / "runs",
+                                on_failure="record")
 
     @staticmethod
     def sample_of(config: Config, fit: Fit | None = None) -> dict[str, float]:
@@ -274,9 +324,17 @@ class _Context:
             sample.update(fit.named)
         return sample
 
-    def fit(self, config: Config, label: str, problems: list[Problem]) -> list[Fit]:
+    def fit(self, config: Config, label: str, problems: list[Problem],
+            max_iterations: int | None = None) -> list[Fit]:
+        started = time.perf_counter()
         fits = fit_many(self.simulator(config, label), problems,
-                        max_iterations=self.settings.max_fit_iterations)
+                        max_iterations=max_iterations or self.settings.max_fit_iterations)
+        self.timings[label] = self.timings.get(label, 0.0) + time.perf_counter() - started
+        for number, fit in enumerate(fits, start=1):
+            if fit.failed_trials:
+                self.notes.append(f"fits '{label}', problem {number}: {len(fit.failed_trials)} "
+                                  f"trial point(s) did not run and were rejected steps; the "
+                                  f"first: {_excerpt(fit.failed_trials[0])}")
         self.step(label)
         return fits
 
@@ -298,26 +356,77 @@ class _Context:
 
 
 def _diagnose_one(context: _Context, base: Model, announce: Announce) -> Diagnosis:
-    d, settings = context.data, context.settings
+    """Every round on one dataset; a step that fails ends it with a note, never a crash.
+
+    A :class:`~bpsflow.errors.BpsflowError` that is not a failed batch is
+    the user's input (a zone, a snippet) and is raised; anything else (a
+    failed batch, an internal error) keeps the verdict reached so far.
+    """
+    d = context.data
     result = Diagnosis(output=d.output, timestamps=d.timestamps, measured=d.y,
                        calibration=d.calibration, drivers=d.drivers, base=base, final=base,
-                       scorecard=context.block_scores(base.fit), backend=context.backend)
+                       scorecard=context.block_scores(base.fit), backend=context.backend,
+                       notes=context.notes)
+    try:
+        return _diagnose_rounds(context, result, base, announce)
+    except Exception as exc:
+        if isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure):
+            raise
+        message = exc.message if isinstance(exc, BpsflowError) else \
+            f"{type(exc).__name__}: {exc}"
+        result.notes.append(f"the diagnosis stopped at step '{context.stage}' (round "
+                            f"{max(len(result.rounds), 1)}); the verdict is the one reached "
+                            f"before it: {_excerpt(message)}")
+        announce(f"step '{context.stage}' failed ({_excerpt(message, 160)}); "
+                 f"the diagnosis keeps what it found before")
+    for entry in result.extensions:
+        entry.setdefault("accepted", False)
+    try:
+        _finish(context, result)
+    except Exception as exc:  # the scores of the final model: keep the rest of the record
+        result.final_scores = result.final_scores or result.scorecard
+        result.gain = result.gain or {}
+        result.notes.append(f"the final scores could not be computed: "
+                            f"{_excerpt(f'{type(exc).__name__}: {exc}')}")
+    found = result.rounds[-1]["significant"] if result.rounds else []
+    if result.verdict == "none" and found:
+        result.cause["summary"] = (f"Significant driver(s) {', '.join(found)} were found, but "
+                                   f"the diagnosis stopped at step '{context.stage}' before "
+                                   f"naming a cause (see the notes).")
+    else:
+        result.cause["summary"] = (result.cause.get("summary", "") + f" The diagnosis stopped "
+                                   f"early, at step '{context.stage}' (see the notes).").strip()
+    return result
+
+
+def _excerpt(text: str, size: int = 300) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= size else text[:size] + " ..."
+
+
+def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
+                     announce: Announce) -> Diagnosis:
+    d, settings = context.data, context.settings
     current = base
-    tried: set[str] = set()
+    accepted_causes: set[str] = set()
     for round_number in range(1, settings.max_rounds + 1):
+        context.round_number = round_number
         residual = d.y - current.fit.prediction
         tests = context.test(residual[d.calibration])
         white = structure.whiteness(residual[d.calibration])
         significant = [t for t in tests if t.significant]
+        suggestive = _suggestive(context, tests)
         result.rounds.append({"round": round_number, "model": current.label,
                               "drivers": [_driver_record(t) for t in tests], "whiteness": white,
-                              "significant": [t.name for t in significant]})
+                              "significant": [t.name for t in significant],
+                              "suggestive": [t.name for t in suggestive]})
         announce(f"round {round_number}: " + (
             f"significant driver(s): {', '.join(t.name for t in significant)}" if significant
-            else "no significant structure in the residuals"))
-        if not significant:
+            else "no significant structure in the residuals")
+            + (f"; suggestive: {', '.join(t.name for t in suggestive)}" if suggestive else ""))
+        if not significant and not suggestive:
             break
-        if round_number == 1:
+        if round_number == 1 and significant:
             explained = _parameter_check(context, result, current, residual, significant)
             if explained is not None:
                 _accept_parameter(result, *explained, significant[0].name, announce)
@@ -325,32 +434,62 @@ def _diagnose_one(context: _Context, base: Model, announce: Announce) -> Diagnos
             result.verdict = "model_form"
             result.cause = {"driver": significant[0].name, "parameter": None,
                             "extension": None, "summary": ""}
-        candidates = [(name, driver) for name, driver in
-                      candidates_for([t.name for t in significant], list(settings.extensions))
-                      if name not in tried]
+        candidates = candidate_causes(context, current, significant + suggestive,
+                                      accepted_causes)
         if not candidates:
             announce("no candidate extension left for these drivers")
+            result.unexplained = [t.name for t in significant]
             break
-        tried.update(name for name, _ in candidates)
         entries = _try_extensions(context, result, current, candidates, residual, round_number,
                                   announce)
-        passed = [(e, m) for e, m in entries if e["passed"]]
+        passed = [(e, m) for e, m in entries if e["passed"] and m is not None]
         result.extensions += [e for e, _ in entries]
         if not passed:
-            announce("no candidate extension improved the held-out accuracy significantly")
+            announce("no candidate extension improved the cross-validated accuracy "
+                     "significantly")
+            result.unexplained = [t.name for t in significant]
             break
-        best, model = min(passed, key=lambda pair: pair[0]["heldout"]["after"]["cvrmse"])
+        best, model = min(passed, key=lambda pair: pair[0]["bic"]["after"])
         best["accepted"] = True
+        result.verdict = "model_form"
+        accepted_causes.add(best["cause"])
         current = result.final = model
         if not result.cause.get("extension"):
-            result.cause["extension"], result.cause["driver"] = best["name"], best["driver"]
-        announce(f"accepted {best['name']} ({_fitted_text(best['fitted'])}): held-out "
-                 f"CV(RMSE) {best['heldout']['before']['cvrmse']:.3%} -> "
-                 f"{best['heldout']['after']['cvrmse']:.3%}")
+            result.cause.update(extension=best["name"], driver=best["driver"],
+                                confidence=best.get("confidence"),
+                                runner_up=best.get("runner_up"))
+        announce(f"accepted {best['cause']} ({_fitted_text(best['fitted'])}): out-of-fold "
+                 f"CV(RMSE) {best['cross_validation']['cvrmse_before']:.3%} -> "
+                 f"{best['cross_validation']['cvrmse_after']:.3%}"
+                 + (f"; runner-up {best['runner_up']['cause']} (ΔBIC "
+                    f"{best['runner_up']['delta_bic']:.1f}, {best['runner_up']['evidence']})"
+                    if best.get("runner_up") else ""))
+    else:
+        residual = d.y - current.fit.prediction
+        left = [t.name for t in context.test(residual[d.calibration]) if t.significant]
+        if left and result.verdict == "model_form":
+            result.unexplained = left
     for entry in result.extensions:
         entry.setdefault("accepted", False)
     _finish(context, result)
     return result
+
+
+def _suggestive(context: _Context, tests: list) -> list:
+    """Drivers short of significance that still call candidates (``candidate_alpha``).
+
+    Slow drivers (wind, outdoor temperature) hold few independent events in a
+    few weeks, so a large, stable effect can miss the family-wise level
+    ``alpha``; its candidates are then fitted anyway, and only the
+    cross-validated acceptance test (whose size is measured, see
+    :mod:`bpsflow.diagnosis.crossval`) can turn them into a verdict. The
+    other gates (share, amplitude, stable sign) still apply.
+    """
+    settings, d = context.settings, context.data
+    min_amplitude = settings.min_amplitude * abs(float(np.mean(d.y[d.calibration])))
+    return [t for t in tests if not t.significant and t.p_adjusted < settings.candidate_alpha
+            and t.share >= settings.min_share and t.amplitude >= min_amplitude
+            and t.sign_consistent]
 
 
 def _driver_record(test) -> dict:
@@ -381,11 +520,14 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
                                       [p.name for p in current.fitted], settings.plausible_change)
     if settings.suspects is not None:
         candidates = [c for c in candidates if c.parameter.name in settings.suspects]
+    # perturbations and refit ranges stay within what EnergyPlus accepts (IDD, glazing T + R)
+    candidates = clip_to_physical(current.config, context.sample_of(current.config, current.fit),
+                                  candidates, context.notes)
     if not candidates:
         return None
     found = signatures(context.simulator(current.config, "signatures"),
                        context.sample_of(current.config, current.fit), candidates,
-                       current.fit.prediction)
+                       current.fit.prediction, notes=context.notes)
     context.step("signatures")
     bounds = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
     width = bounds[:, 1] - bounds[:, 0]
@@ -422,6 +564,10 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
     before = {t.name: t.share for t in significant}
     best = None
     for e, fit in zip(shortlist, fits):
+        if fit.failed:
+            context.notes.append(f"parameter {e.name}: its refit failed and is left out: "
+                                 f"{_excerpt(fit.failure)}")
+            continue
         after = context.test((d.y - fit.prediction)[d.calibration])
         left = [t.name for t in after if t.significant]
         # explained: nothing significant left AND each driver lost at least half its share
@@ -456,148 +602,664 @@ def _accept_parameter(result: Diagnosis, model: Model, parameter_fit: dict, driv
              f"{parameter_fit['fitted']:.4g}) explains the structure")
 
 
-def _try_extensions(context: _Context, result: Diagnosis, current: Model,
-                    candidates: list[tuple[str, str]], residual: np.ndarray, round_number: int,
-                    announce: Announce) -> list[tuple[dict, Model]]:
-    """Fit each candidate extension with the existing parameters; score it against ``current``.
+@dataclass
+class Candidate:
+    """One candidate cause: an extension written (or re-opened) in the model, and its variants.
 
-    All candidates are fitted in one batch on the union of their IDF objects:
-    every extension is nested at zero, so with the other candidates' new
-    parameters at zero the union *is* ``current`` plus that one extension.
+    ``cause`` names what would be concluded (``solar_aperture (west)``,
+    ``infiltration``); ``variants`` are its alternative shapes (gain blocks),
+    fitted together, the best by objective kept. ``free`` lists, per variant,
+    the extension parameters fitted; ``law_terms`` marks a law whose terms are
+    chosen by BIC after the fit (:func:`_choose_terms`).
     """
+
+    cause: str
+    family: str
+    driver: str
+    variants: list[tuple[Config, list[Parameter], dict]]
+    law_terms: bool = False
+
+
+#: Driver groups that call each extension family. Irradiance and time-of-day
+#: structure are confounded (the sun follows the clock), so both call every
+#: aperture and the scheduled gain, and fit decides (issue: "candidates are
+#: chosen by fit, not only by the strongest driver").
+FAMILY_GROUPS: dict[str, tuple[str, ...]] = {
+    "internal_gain_schedule": ("hour", "weekend", "day", "irradiance"),
+    "solar_aperture": ("hour", "irradiance"),
+    "infiltration": ("temperature", "wind"),
+    "infiltration_wind": ("wind",),
+    "envelope_ua": ("temperature",),
+    "thermal_mass": ("temperature", "irradiance", "hour"),
+}
+
+#: Planes an unmodelled aperture may face: the four walls, the roof, and the sky's
+#: diffuse part alone (a shaded or north-light opening).
+APERTURE_FACES = ("south", "east", "west", "north", "roof", "sky_diffuse")
+
+
+def candidate_causes(context: _Context, current: Model, significant: list,
+                     accepted: set[str]) -> list[Candidate]:
+    """The causes worth fitting for the significant drivers, every shape of each.
+
+    A family is called by the group of any significant driver
+    (:data:`FAMILY_GROUPS`), not only by the strongest one. An aperture is
+    tried on every face (:data:`APERTURE_FACES`); a face already accepted is
+    not tried again. A law already in the model (infiltration) is re-opened
+    with all its terms free, so a later round can correct a law chosen wrongly
+    earlier; a scheduled gain may be found again (another block).
+    """
+    from bpsflow.diagnosis.drivers import driver_group
+
+    settings = context.settings
+    groups: dict[str, str] = {}
+    for test in significant:
+        groups.setdefault(test.group, test.name)
+    allowed = [name for name in settings.extensions if name in EXTENSIONS]
+    out: list[Candidate] = []
+    for family in allowed:
+        called_by = FAMILY_GROUPS.get(family) or tuple(
+            driver_group(name) for name in EXTENSIONS[family].drivers)
+        calling = [groups[g] for g in called_by if g in groups]
+        if not calling:
+            continue
+        driver = calling[0]
+        if family == "solar_aperture":
+            out += _aperture_candidates(context, current, driver, accepted,
+                                        {t.name for t in significant})
+        elif family == "internal_gain_schedule":
+            out += _gain_candidates(context, current, driver)
+        elif family in accepted and not _is_law(family):
+            continue
+        else:
+            out.append(_plain_candidate(context, current, family, driver))
+    return out
+
+
+def _is_law(family: str) -> bool:
+    return len(EXTENSIONS[family].parameters) > 1 and family.startswith("infiltration")
+
+
+def _directory(context: _Context, family: str) -> Path:
+    return context.out_dir / "extensions" / f"round{context.round_number}_{family}"
+
+
+def _extension_parameters(config: Config, family: str) -> list[Parameter]:
+    return [p for p in config.parameters
+            if (p.provenance or {}).get("extension") == family]
+
+
+def _plain_candidate(context: _Context, current: Model, family: str,
+                     driver: str) -> Candidate:
+    """One extension with all its parameters free; a law already in the model is re-opened."""
+    config = current.config
+    present = _extension_parameters(config, family)
+    if present:
+        return Candidate(family, family, driver, [(config, present, {"reopened": True})],
+                         law_terms=_is_law(family))
+    zone = diagnosis_zone(config, context.data.output, family)
+    extended = extend_config(config, EXTENSIONS[family], _directory(context, family), zone=zone)
+    known = {p.name for p in config.parameters}
+    new = [p for p in extended.parameters if p.name not in known]
+    return Candidate(family, family, driver, [(extended, new, {"zone": zone})],
+                     law_terms=_is_law(family))
+
+
+def _gain_candidates(context: _Context, current: Model, driver: str) -> list[Candidate]:
     d, config = context.data, current.config
-    union = config
-    variants = []     # (candidate index, extended config, new parameters, detail)
-    for index, (name, driver) in enumerate(candidates):
-        extension = EXTENSIONS[name]
-        directory = context.out_dir / "extensions" / f"round{round_number}_{name}"
-        zone = diagnosis_zone(config, d.output, name)
-        options: list[tuple[pd.Series | None, dict, int | None]] = [(None, {"zone": zone},
-                                                                     None)]
-        if name == "internal_gain_schedule":
-            blocks = gain_blocks(
-                pd.Series(residual[d.calibration], index=d.timestamps[d.calibration]),
-                output_sign(config, d.output),
-                fitted_jacobian=current.fit.jacobian[d.calibration],
-                count=context.settings.gain_blocks)
-            options = [(profile_schedule(profile, config.model.year),
-                        {"schedule": block, "zone": zone},
-                        number if len(blocks) > 1 else None)
-                       for number, (profile, block) in enumerate(blocks, start=1)]
-        elif name == "solar_aperture":
-            # the irradiance on the zone's own facade (model geometry), not a fixed plane
-            irradiance, geometry = facade_irradiance(config, zone, facade_of(driver))
-            options = [(irradiance, geometry, None)]
-        for schedule, detail, variant in options:
-            extended = extend_config(config, extension, directory, schedule, variant, zone=zone)
-            union = extend_config(union, extension, directory, schedule, variant, zone=zone)
-            known = {p.name for p in config.parameters}
-            new = [p for p in extended.parameters if p.name not in known]
-            variants.append((index, extended, new, detail))
-    announce(f"fitting {len(candidates)} candidate extension(s) ({len(variants)} variant(s)): "
-             + ", ".join(f"{n} ({drv})" for n, drv in candidates))
+    family = "internal_gain_schedule"
+    zone = diagnosis_zone(config, d.output, family)
+    residual = d.y - current.fit.prediction
+    blocks = gain_blocks(pd.Series(residual[d.calibration], index=d.timestamps[d.calibration]),
+                         output_sign(config, d.output),
+                         fitted_jacobian=current.fit.jacobian[d.calibration],
+                         count=context.settings.gain_blocks)
+    known = {p.name for p in config.parameters}
+    variants = []
+    for number, (profile, block) in enumerate(blocks, start=1):
+        extended = extend_config(config, EXTENSIONS[family], _directory(context, family),
+                                 profile_schedule(profile, config.model.year),
+                                 _fresh_variant(config, family, number), zone=zone)
+        variants.append((extended, [p for p in extended.parameters if p.name not in known],
+                         {"schedule": block, "zone": zone}))
+    return [Candidate(family, family, driver, variants)] if variants else []
+
+
+def _fresh_variant(config: Config, family: str, number: int) -> int:
+    """A variant number whose parameter names are not in ``config`` yet (a second gain...)."""
+    taken = {p.name for p in config.parameters}
+    base = [p.name for p in EXTENSIONS[family].parameters]
+    offset = 0
+    while any(f"{name}_v{number + offset}" in taken for name in base):
+        offset += 100
+    return number + offset
+
+
+def _aperture_candidates(context: _Context, current: Model, driver: str,
+                         accepted: set[str], significant_names: set[str]) -> list[Candidate]:
+    d, config = context.data, current.config
+    family = "solar_aperture"
+    zone = diagnosis_zone(config, d.output, family)
+    known = {p.name for p in config.parameters}
+    out = []
+    for number, face in enumerate(APERTURE_FACES, start=1):
+        cause = f"{family} ({face})"
+        if cause in accepted:
+            continue
+        if face == "sky_diffuse":
+            irradiance, geometry = sky_diffuse_irradiance(config), {"facade": face, "zone": zone}
+        else:
+            irradiance, geometry = facade_irradiance(config, zone, face)
+        extended = extend_config(config, EXTENSIONS[family], _directory(context, family),
+                                 irradiance, _fresh_variant(config, family, number), zone=zone)
+        own = f"incident_solar_{face}"
+        out.append(Candidate(cause, family, own if own in significant_names else driver,
+                             [(extended, [p for p in extended.parameters if p.name not in known],
+                               geometry)]))
+    return out
+
+
+def _try_extensions(context: _Context, result: Diagnosis, current: Model,
+                    candidates: list[Candidate], residual: np.ndarray, round_number: int,
+                    announce: Announce) -> list[tuple[dict, Model | None]]:
+    """Fit every candidate's variants, choose each one's shape, cross-validate the best causes.
+
+    All variants are fitted in one batch on the union of their IDF objects:
+    every extension is nested at zero, so with the other candidates' new
+    parameters at zero the union *is* ``current`` plus that one variant. Per
+    cause the variant with the lowest objective is kept (a law's terms are
+    then chosen by BIC, :func:`_choose_terms`). The causes are ranked by BIC on
+    the calibration hours; the ``cv_candidates`` best are cross-validated
+    over the whole period (:mod:`bpsflow.diagnosis.crossval`), and a cause
+    passes when its out-of-fold errors are significantly smaller
+    (Diebold–Mariano, fixed-b), its BIC is lower and its out-of-fold CV(RMSE)
+    is lower than ``current``'s.
+    """
+    d, settings = context.data, context.settings
+    union = current.config
+    for candidate in candidates:
+        for extended, _, _ in candidate.variants:
+            union = _merge(union, extended)
+    flat = [(c, v) for c in candidates for v in c.variants]
+    announce(f"fitting {len(candidates)} candidate cause(s) ({len(flat)} variant(s)): "
+             + ", ".join(f"{c.cause} ({c.driver})" for c in candidates))
     union_sample = context.sample_of(union, current.fit)
-    problems = [Problem(union_sample, [*current.fitted, *new], d.y, d.calibration,
-                        {**current.fit.named, **{p.name: 0.0 for p in new}})
-                for _, _, new, _ in variants]
+    screened = _screen(context, union, union_sample, current, [v for _, v in flat],
+                       round_number)
+    # per cause its best variant by the screen; the best causes are fitted for real
+    best_variant: dict[int, int] = {}
+    for position, (candidate, _) in enumerate(flat):
+        key = id(candidate)
+        if key not in best_variant or screened[position] < screened[best_variant[key]]:
+            best_variant[key] = position
+    ranked = sorted(best_variant.values(), key=lambda position: screened[position])
+    selected = ranked[:settings.cv_candidates]
+    for position, (_, variant) in enumerate(flat):
+        variant[2]["screen_bic"] = float(screened[position])
+    announce("  screened (linearised BIC): " + ", ".join(
+        f"{flat[i][0].cause} {screened[i]:.1f}" for i in ranked))
+    problems = [Problem(union_sample, [*_without(current.fitted, free), *free], d.y,
+                        d.calibration, {**current.fit.named,
+                                        **{p.name: current.fit.named.get(p.name, 0.0)
+                                           for p in free}})
+                for _, (_, free, _) in (flat[i] for i in selected)]
     fits = context.fit(union, f"round{round_number}", problems)
-    per_candidate = []
-    for index, (name, driver) in enumerate(candidates):
-        mine = [(v, f) for v, f in zip(variants, fits) if v[0] == index]
-        (_, extended, new, detail), fit = min(mine, key=lambda pair: pair[1].objective)
-        if len(mine) > 1:
-            detail = {**detail, "variants": [
-                {**v[3], "objective": f.objective,
-                 "fitted": {_reported(p): float(f.named[p.name]) for p in v[2]}}
-                for v, f in mine]}
-        if name == "internal_gain_schedule" and "schedule" in detail:
+    flat_fitted = [flat[i] for i in selected]
+    cal = d.calibration
+    chosen = []         # (candidate, config, fitted parameters, detail, fit)
+    for candidate in candidates:
+        mine = [(v, f, problem) for (c, v), f, problem in zip(flat_fitted, fits, problems)
+                if c is candidate]
+        if not mine:
+            continue
+        (extended, free, detail), fit, problem = min(mine, key=lambda t: t[1].objective)
+        if fit.failed:
+            context.notes.append(f"candidate {candidate.cause} ({candidate.driver}) left out: "
+                                 f"its fit failed: {_excerpt(fit.failure)}")
+            continue
+        variants = [v for c, v in flat if c is candidate]
+        if len(variants) > 1:
+            detail = {**detail, "variants": [{**v[2]} for v in variants]}
+        fitted = list(problem.parameters)
+        if candidate.law_terms:
+            fitted, fit, detail = _choose_terms(context, union, union_sample, current, free,
+                                                fit, detail, round_number)
+        chosen.append((candidate, extended, fitted, detail, fit))
+    bic_before = comparison.bic(d.y[cal] - current.fit.prediction[cal], len(current.fitted))
+
+    def ranking() -> tuple[list[float], list[int]]:
+        values = [comparison.bic(d.y[cal] - fit.prediction[cal], len(fitted))
+                  for _, _, fitted, _, fit in chosen]
+        return values, [int(i) for i in np.argsort(values)]
+
+    bics, order = ranking()
+    # a gain block's edges are refined only when it may be chosen (ranked among
+    # the causes that are cross-validated): each edge step is a batch of fits
+    for index in order[:settings.cv_candidates]:
+        candidate, extended, fitted, detail, fit = chosen[index]
+        if candidate.family == "internal_gain_schedule" and "schedule" in detail:
+            new = [p for p in fitted if p.name not in {q.name for q in current.fitted}]
             extended, new, detail, fit = _refine_block(context, current, extended, new, detail,
                                                        fit, round_number)
-        per_candidate.append((name, driver, extended, new, detail, fit))
+            chosen[index] = (candidate, extended, [*_without(current.fitted, new), *new],
+                             detail, fit)
+    bics, order = ranking()
+    # a refined block is a new object: the cross-validation runs on a union holding it
+    for _, extended, _, _, _ in chosen:
+        union = _merge(union, extended)
+    union_sample = context.sample_of(union, current.fit)
+    validated = order[:settings.cv_candidates]
+    validated = [int(i) for i in validated]
     before = context.block_scores(current.fit)
-    held, cal = ~d.calibration, d.calibration
-    out = []
-    for name, driver, extended, new, detail, fit in per_candidate:
-        fitted = [*current.fitted, *new]
+    oof = {validated[k]: v for k, v in _cross_validate(
+        context, union, union_sample, current,
+        [(chosen[i][2], chosen[i][4]) for i in validated], round_number).items()}
+    out: list[tuple[dict, Model | None]] = []
+    for rank, index in enumerate(order):
+        candidate, extended, fitted, detail, fit = chosen[index]
         after = context.block_scores(fit)
-        test = comparison.loss_difference_test(d.y[held] - current.fit.prediction[held],
-                                               d.y[held] - fit.prediction[held],
-                                               loss="absolute", lags=HELDOUT_LAGS)
-        bic_before = comparison.bic(d.y[cal] - current.fit.prediction[cal], len(current.fitted))
-        bic_after = comparison.bic(d.y[cal] - fit.prediction[cal], len(fitted))
-        passed = bool(test["p_value"] < context.settings.gain_alpha and bic_after < bic_before
-                      and after["heldout"]["cvrmse"] < before["heldout"]["cvrmse"])
+        current_names = {q.name for q in current.fitted}
+        new = [p for p in fitted if p.name not in current_names
+               or (detail.get("reopened")
+                   and (p.provenance or {}).get("extension") == candidate.family)]
+        cv = oof.get(index)
+        test: dict = cv["test"] if cv else {}
+        passed = bool(cv is not None and test["p_value"] < settings.gain_alpha
+                      and bics[index] < bic_before and cv["cvrmse_after"] < cv["cvrmse_before"])
         names = [p.name for p in fitted]
-        entry = {"name": name, "driver": driver, "round": round_number,
+        screened_out = [(v[2]["screen_bic"], c.cause) for c, v in flat
+                        if not any(c is other for other, *_ in chosen)]
+        entry = {"name": candidate.family, "cause": candidate.cause, "driver": candidate.driver,
+                 "round": round_number, "rank": rank + 1,
                  "fitted": {_reported(p): float(fit.named[p.name]) for p in new},
-                 "fitted_std": {_reported(p): float(np.sqrt(fit.covariance[names.index(p.name)]
-                                                            [names.index(p.name)]))
-                                for p in new},
+                 "fitted_std": {_reported(p): float(np.sqrt(max(
+                     fit.covariance[names.index(p.name)][names.index(p.name)], 0.0)))
+                     for p in new},
                  "heldout": {"before": _short(before["heldout"]),
                              "after": _short(after["heldout"])},
                  "calibration": {"before": _short(before["calibration"]),
                                  "after": _short(after["calibration"])},
-                 "loss_difference": test, "bic": {"before": bic_before, "after": bic_after},
+                 "cross_validation": ({k: v for k, v in cv.items() if k != "test"} if cv
+                                      else None),
+                 "loss_difference": test or None,
+                 "bic": {"before": bic_before, "after": bics[index]},
                  "passed": passed, "iterations": fit.iterations,
                  "files": str(extended.model.idf_objects[-1].parent), **detail}
-        announce(f"  {name}: {_fitted_text(entry['fitted'])}; held-out CV(RMSE) "
-                 f"{before['heldout']['cvrmse']:.3%} -> {after['heldout']['cvrmse']:.3%}, "
-                 f"loss-difference p = {test['p_value']:.3g}, BIC {bic_before:.1f} -> "
-                 f"{bic_after:.1f}: {'passes' if passed else 'rejected'}")
-        out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{name}")))
+        # the runner-up: the next cause fitted, or a screened-out one if its screen is lower
+        others = [(float(bics[j]), chosen[j][0].cause, "fitted") for j in order if j != index]
+        others += [(value, cause, "screened") for value, cause in screened_out]
+        if others:
+            runner_bic, runner_cause, how = min(others)
+            delta = float(runner_bic - bics[index])
+            entry["runner_up"] = {"cause": runner_cause, "bic": runner_bic, "bic_from": how,
+                                  "delta_bic": delta,
+                                  "evidence": crossval.evidence_words(abs(delta))}
+            entry["confidence"] = crossval.bic_weight(bics[index], runner_bic)
+        announce(f"  {candidate.cause}: {_fitted_text(entry['fitted'])}; BIC {bic_before:.1f} "
+                 f"-> {bics[index]:.1f}" + (
+                     f"; out-of-fold CV(RMSE) {cv['cvrmse_before']:.3%} -> "
+                     f"{cv['cvrmse_after']:.3%}, p = {test['p_value']:.3g}" if cv else
+                     " (not cross-validated: ranked below the best "
+                     f"{settings.cv_candidates})")
+                 + f": {'passes' if passed else 'rejected'}")
+        out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{candidate.cause}")))
+    for candidate, variant in flat:
+        if not any(c is candidate for c, *_ in chosen) and variant is \
+                min((v for c, v in flat if c is candidate), key=lambda v: v[2]["screen_bic"]):
+            out.append(({"name": candidate.family, "cause": candidate.cause,
+                         "driver": candidate.driver, "round": round_number, "rank": None,
+                         "fitted": {}, "heldout": _unchanged(before),
+                         "calibration": None, "cross_validation": None,
+                         "loss_difference": None,
+                         "bic": {"before": bic_before, "after": None},
+                         "passed": False, "screened_out": True, **variant[2]}, None))
+    return out
+
+
+def _gauss_newton_refit(measured: np.ndarray, fit: Fit, fitted: list[Parameter],
+                        train: np.ndarray) -> np.ndarray:
+    """The prediction after one bounded Gauss–Newton step of ``fit`` towards the ``train`` hours.
+
+    The fold's refit linearised at the fit on the calibration hours (its
+    Jacobian): exact for a model linear in its parameters, and close when the
+    fold moves the parameters little (one week of several).
+    """
+    from scipy.optimize import lsq_linear
+
+    if not len(fitted):
+        return fit.prediction
+    ranges = np.array([parameter_range(p) for p in fitted]).reshape(-1, 2)
+    lower = ranges[:, 0] - fit.values
+    upper = np.maximum(ranges[:, 1] - fit.values, lower + 1e-12)
+    jacobian = fit.jacobian[train]
+    scale = np.maximum(np.abs(jacobian).max(axis=0), 1e-300)
+    step = lsq_linear(jacobian / scale, (measured - fit.prediction)[train],
+                      bounds=(lower * scale, upper * scale)).x / scale
+    return fit.prediction + fit.jacobian @ step
+
+
+def _unchanged(scores_now: dict) -> dict:
+    return {"before": _short(scores_now["heldout"]), "after": _short(scores_now["heldout"])}
+
+
+def _screen(context: _Context, union: Config, union_sample: dict, current: Model,
+            variants: list[tuple[Config, list[Parameter], dict]], round_number: int) -> list[float]:
+    """Linearised BIC of every variant, from one batch of one run per new parameter.
+
+    Each variant's new parameters are set, one at a time, a quarter of their
+    range above their current value (a parameter that acts only through the
+    variant's first one, e.g. a gain's radiant fraction, with the first one
+    set too); the change of the prediction is its column. With the existing
+    parameters' Jacobian of the current fit, bounded linear least squares on
+    the calibration hours gives the variant's residual, hence its BIC
+    (:func:`bpsflow.diagnosis.comparison.bic`). The screen ranks; the
+    best causes are then fitted by simulation.
+    """
+    from scipy.optimize import lsq_linear
+
+    d = context.data
+    cal = d.calibration
+    rows: list[dict[str, float]] = []
+    plan = []           # per variant: [(parameter, step, row of its point, row of its base)]
+    for _, free, _ in variants:
+        steps: list[tuple[Parameter, float, int, int | None]] = []
+        first_row = None
+        for position, parameter in enumerate(free):
+            low, high = parameter_range(parameter)
+            now = float(union_sample.get(parameter.name, 0.0))
+            step = 0.25 * (high - now) if high - now > 1e-12 else 0.25 * (low - now)
+            point = dict(union_sample)
+            base_row = None
+            if position > 0 and first_row is not None:
+                point[free[0].name] = rows[first_row][free[0].name]
+                base_row = first_row
+            point[parameter.name] = now + step
+            rows.append(point)
+            if position == 0:
+                first_row = len(rows) - 1
+            steps.append((parameter, step, len(rows) - 1, base_row))
+        plan.append(steps)
+    samples = pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance"))
+    started = time.perf_counter()
+    predicted = context.simulator(union, f"round{round_number}_screen")(samples) if rows \
+        else np.zeros((0, len(d.y)))
+    context.timings[f"round{round_number}_screen"] = time.perf_counter() - started
+    context.step(f"round{round_number}_screen")
+    existing_ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
+    residual = d.y[cal] - current.fit.prediction[cal]
+    out = []
+    for (_, free, _), steps in zip(variants, plan):
+        kept = [p for p in current.fitted if p.name not in {q.name for q in free}]
+        keep_index = [i for i, p in enumerate(current.fitted) if p in kept]
+        columns = [current.fit.jacobian[cal][:, keep_index]]
+        lower = list(existing_ranges[keep_index, 0] - current.fit.values[keep_index])
+        upper = list(existing_ranges[keep_index, 1] - current.fit.values[keep_index])
+        for parameter, step, row, base_row in steps:
+            reference = current.fit.prediction if base_row is None else predicted[base_row]
+            columns.append((predicted[row] - reference)[cal][:, None] / step)
+            low, high = parameter_range(parameter)
+            now = float(union_sample.get(parameter.name, 0.0))
+            lower.append(low - now)
+            upper.append(high - now)
+        design = np.column_stack(columns)
+        if not np.isfinite(design).all():       # a screening run failed
+            context.notes.append(f"screen of round {round_number}: a run of a candidate with "
+                                 f"{', '.join(p.name for p in free)} failed; it is ranked last")
+            out.append(np.inf)
+            continue
+        low_bounds, high_bounds = np.array(lower), np.maximum(np.array(upper),
+                                                                np.array(lower) + 1e-12)
+        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
+        solution = lsq_linear(design / scale, residual, bounds=(low_bounds * scale,
+                                                                 high_bounds * scale))
+        left = residual - (design / scale) @ solution.x
+        out.append(comparison.bic(left, len(kept) + len(free)))
+    return out
+
+
+def _merge(union: Config, extended: Config) -> Config:
+    """``union`` plus the IDF snippets and parameters of ``extended`` it lacks."""
+    files = [f for f in extended.model.idf_objects if f not in union.model.idf_objects]
+    names = {p.name for p in union.parameters}
+    params = [p for p in extended.parameters if p.name not in names]
+    if not files and not params:
+        return union
+    merged = union.model_copy(deep=True)
+    merged.source = union.source
+    merged.model.idf_objects = [*union.model.idf_objects, *files]
+    merged.parameters = [*union.parameters, *params]
+    return merged
+
+
+def _without(parameters: list[Parameter], drop: list[Parameter]) -> list[Parameter]:
+    names = {p.name for p in drop}
+    return [p for p in parameters if p.name not in names]
+
+
+def _choose_terms(context: _Context, union: Config, union_sample: dict, current: Model,
+                  terms: list[Parameter], fit: Fit, detail: dict,
+                  round_number: int) -> tuple[list[Parameter], Fit, dict]:
+    """The law's terms by BIC: every non-empty subset, linearised at the all-terms fit.
+
+    Each subset's least squares is solved on the fit's Jacobian (existing
+    parameters free within their ranges, the subset's coefficients ≥ 0, the
+    other terms at 0); its BIC (:func:`bpsflow.diagnosis.comparison.bic`)
+    ranks it. The best subset, if not all terms, is then refitted by
+    simulation (one more batch), so the reported coefficients are exact.
+    """
+    from itertools import combinations
+
+    from scipy.optimize import lsq_linear
+
+    d = context.data
+    cal = d.calibration
+    others = _without(fit.parameters, terms)
+    names = [p.name for p in fit.parameters]
+    ranges = np.array([parameter_range(p) for p in fit.parameters]).reshape(-1, 2)
+    jacobian = fit.jacobian[cal]
+    residual = d.y[cal] - fit.prediction[cal]
+    table: list[dict] = []
+    for size in range(1, len(terms) + 1):
+        for subset in combinations(terms, size):
+            keep = {p.name for p in others} | {p.name for p in subset}
+            lower = ranges[:, 0] - fit.values
+            upper = ranges[:, 1] - fit.values
+            for j, name in enumerate(names):
+                if name not in keep:           # pinned at the law's zero
+                    lower[j] = -fit.values[j] - 1e-12
+                    upper[j] = -fit.values[j] + 1e-12
+            upper = np.maximum(upper, lower + 1e-12)
+            step = lsq_linear(jacobian, residual, bounds=(lower, upper)).x
+            rss_residual = residual - jacobian @ step
+            table.append({"terms": [_reported(p) for p in subset],
+                          "bic": comparison.bic(rss_residual, len(others) + size),
+                          "subset": subset})
+    table.sort(key=lambda row: row["bic"])
+    best = table[0]
+    detail = {**detail, "term_selection": [{"terms": r["terms"], "bic": r["bic"]}
+                                           for r in table[:8]]}
+    chosen_terms: list[Parameter] = list(best["subset"])
+    if len(chosen_terms) < len(terms):
+        start = {**fit.named, **{p.name: 0.0 for p in terms if p not in chosen_terms}}
+        (fit,) = context.fit(union, f"round{round_number}_law",
+                             [Problem(union_sample, [*others, *chosen_terms], d.y, cal, start)])
+    detail["law"] = law_text({_reported(p): float(fit.named[p.name]) for p in chosen_terms})
+    detail["terms"] = [_reported(p) for p in chosen_terms]
+    return [*others, *chosen_terms], fit, detail
+
+
+def _cross_validate(context: _Context, union: Config, union_sample: dict, current: Model,
+                    models: list[tuple[list[Parameter], Fit]], round_number: int) -> dict:
+    """Out-of-fold errors of ``current`` and each model; the test of each against ``current``.
+
+    Folds are whole weeks over the whole period (:func:`crossval.day_blocks`);
+    the held-out block is the last fold, whose fit is the calibration fit.
+    Each other fold is refitted from the calibration fit's values
+    (``cv_iterations`` Levenberg–Marquardt steps at most), every model and
+    fold in one batch.
+
+    Returns
+    -------
+    dict
+        Index in ``models`` -> ``folds``, ``cvrmse_before``, ``cvrmse_after``
+        (out-of-fold, all hours) and ``test`` (Diebold–Mariano on the
+        absolute out-of-fold errors, HAC over one day).
+    """
+    d, settings = context.data, context.settings
+    if not models:
+        return {}
+    folds = crossval.day_blocks(d.timestamps, ~d.calibration, settings.days_per_fold)
+    last = int(folds.max())
+    key = (current.label, round_number)
+    everyone = ([] if key in context.oof_cache else [(current.fitted, current.fit)]) + models
+    refit = settings.cv_refit or ("simulated" if get_backend(context.backend).vectorised
+                                  else "linearised")
+    predictions = []
+    if refit == "simulated":
+        problems = [Problem(union_sample, fitted, d.y, folds != number, dict(fit.named))
+                    for fitted, fit in everyone for number in range(last)]
+        fits = context.fit(union, f"round{round_number}_folds", problems,
+                           max_iterations=settings.cv_iterations) if problems else []
+        for position, (_, fit) in enumerate(everyone):
+            mine = fits[position * last:(position + 1) * last]
+            per_fold = {number: f.prediction for number, f in enumerate(mine)}
+            per_fold[last] = fit.prediction
+            predictions.append(crossval.out_of_fold(folds, per_fold))
+    else:
+        for fitted, fit in everyone:
+            per_fold = {number: _gauss_newton_refit(d.y, fit, fitted, folds != number)
+                        for number in range(last)}
+            per_fold[last] = fit.prediction
+            predictions.append(crossval.out_of_fold(folds, per_fold))
+    if key not in context.oof_cache:
+        context.oof_cache[key] = predictions.pop(0)
+    base = context.oof_cache[key]
+    mean = float(np.mean(d.y))
+    out = {}
+    for index, prediction in enumerate(predictions):
+        test = comparison.loss_difference_test(d.y - base, d.y - prediction,
+                                               loss="absolute", lags=HELDOUT_LAGS)
+        out[index] = {"folds": last + 1, "days_per_fold": settings.days_per_fold,
+                      "cvrmse_before": float(np.sqrt(np.mean((d.y - base) ** 2)) / abs(mean)),
+                      "cvrmse_after": float(np.sqrt(np.mean((d.y - prediction) ** 2))
+                                            / abs(mean)),
+                      "test": test}
     return out
 
 
 def _refine_block(context: _Context, current: Model, extended: Config, new: list[Parameter],
-                  detail: dict, fit: Fit, round_number: int, steps: int = 3):
-    """Move the best gain block's edges an hour at a time while the refit improves.
+                  detail: dict, fit: Fit, round_number: int, steps: int = 8):
+    """Move the best gain block's edges while the fit improves; one real refit at the end.
 
-    The screen that shortlisted the blocks is linear; the winner's edges are
-    checked by refitting its neighbours (start ± 1 h, end ± 1 h) in one batch,
-    up to ``steps`` times.
+    The screen that shortlisted the blocks is linear on the residual, and the
+    calibration bent the existing parameters towards the missing gain, so the
+    edges it finds can be off by hours. Each step simulates the block's
+    neighbours (start ± 1 h or ± 2 h, end ± 1 h or ± 2 h) at the fitted
+    level, one run each in one batch, and scores each by the residual sum of
+    squares left after a linear correction of every fitted parameter (the
+    fit's Jacobian): the best neighbour is taken if it improves, up to
+    ``steps`` times. The block reached is then fitted by simulation (from the
+    values reached) and kept if its objective beats the block it started from.
     """
+    from scipy.optimize import lsq_linear
+
     d, config = context.data, current.config
+    cal = d.calibration
     extension = EXTENSIONS["internal_gain_schedule"]
-    tried = {(v["schedule"]["day_type"], v["schedule"]["start_hour"], v["schedule"]["end_hour"])
-             for v in detail.get("variants", [detail])}
-    best = (extended, new, detail, fit)
-    for step in range(steps):
-        block = best[2]["schedule"]
-        day_type, first, last = block["day_type"], block["start_hour"], block["end_hour"]
-        neighbours = [(day_type, a, b) for a, b in ((first - 1, last), (first + 1, last),
-                                                    (first, last - 1), (first, last + 1))
-                      if 0 <= a < b <= 24 and (day_type, a, b) not in tried]
+    directory = context.out_dir / "extensions" / f"round{round_number}_internal_gain_schedule"
+    fitted = [*_without(current.fitted, new), *new]
+    names = [p.name for p in fitted]
+    ranges = np.array([parameter_range(p) for p in fitted]).reshape(-1, 2)
+    jacobian = fit.jacobian[cal]
+    scale = np.maximum(np.abs(jacobian).max(axis=0), 1e-300)
+
+    def corrected(prediction: np.ndarray, values: np.ndarray) -> tuple[float, np.ndarray]:
+        """RSS after the best bounded linear step of every fitted parameter, and that step."""
+        lower = (ranges[:, 0] - values) * scale
+        upper = np.maximum((ranges[:, 1] - values) * scale, lower + 1e-12)
+        step = lsq_linear(jacobian / scale, (d.y - prediction)[cal], bounds=(lower, upper)).x
+        left = (d.y - prediction)[cal] - (jacobian / scale) @ step
+        return float(left @ left), step / scale
+
+    block = dict(detail["schedule"])
+    state_values = fit.values.copy()
+    state_rss = float(np.sum((d.y - fit.prediction)[cal] ** 2))
+    tried = {(block["day_type"], block["start_hour"], block["end_hour"])}
+    moves: list[dict] = []
+    reached: tuple[Config, list[Parameter]] | None = None
+    for step_number in range(steps):
+        kind, first, last = block["day_type"], block["start_hour"], block["end_hour"]
+        neighbours = [(kind, a, b) for a, b in ((first - 2, last), (first - 1, last),
+                                                (first + 1, last), (first + 2, last),
+                                                (first, last - 2), (first, last - 1),
+                                                (first, last + 1), (first, last + 2))
+                      if 0 <= a < b <= 24 and (kind, a, b) not in tried]
         if not neighbours:
             break
         tried.update(neighbours)
         union, variants = config, []
-        for number, (kind, a, b) in enumerate(neighbours, start=1):
-            schedule = profile_schedule(block_profile(kind, a, b), config.model.year)
-            directory = (context.out_dir / "extensions"
-                         / f"round{round_number}_internal_gain_schedule" / f"edge{step}")
-            variant = extend_config(config, extension, directory, schedule, number,
-                                    zone=detail.get("zone"), output=d.output)
-            union = extend_config(union, extension, directory, schedule, number,
-                                  zone=detail.get("zone"), output=d.output)
-            added = [p for p in variant.parameters if p.name not in
-                     {q.name for q in config.parameters}]
-            variants.append((variant, added, {"day_type": kind, "start_hour": a, "end_hour": b}))
-        level = float(next(iter(best[3].named[p.name] for p in best[1])))
-        problems = [Problem(context.sample_of(union, current.fit), [*current.fitted, *added],
-                            d.y, d.calibration,
-                            {**best[3].named, **{p.name: level for p in added}})
-                    for _, added, _ in variants]
-        fits = context.fit(union, f"round{round_number}_edges{step}", problems)
-        (variant, added, block), refit = min(zip(variants, fits),
-                                             key=lambda pair: pair[1].objective)
-        best[2].setdefault("variants", []).extend(
-            {"schedule": b, "objective": f.objective,
-             "fitted": {_reported(p): float(f.named[p.name]) for p in a}}
-            for (_, a, b), f in zip(variants, fits))
-        if refit.objective >= best[3].objective:
+        for number, (day_type, a, b) in enumerate(neighbours, start=1):
+            schedule = profile_schedule(block_profile(day_type, a, b), config.model.year)
+            number = _fresh_variant(config, "internal_gain_schedule", 1000 + 10 * step_number
+                                    + number)
+            variant = extend_config(config, extension, directory / f"edge{step_number}",
+                                    schedule, number, zone=detail.get("zone"), output=d.output)
+            union = _merge(union, variant)
+            added = [p for p in variant.parameters
+                     if p.name not in {q.name for q in config.parameters}]
+            variants.append((variant, added, {"day_type": day_type, "start_hour": a,
+                                              "end_hour": b}))
+        base_row = context.sample_of(union, current.fit)
+        base_row.update(dict(zip(names, state_values)))
+        level = {_reported(p): float(v) for p, v in zip(fitted, state_values) if p in new}
+        rows = []
+        for _, added, _ in variants:
+            row = dict(base_row)
+            row.update({p.name: 0.0 for p in new})          # the block being replaced
+            row.update({p.name: level.get(_reported(p), 0.0) for p in added})
+            rows.append(row)
+        started = time.perf_counter()
+        predicted = context.simulator(union, f"round{round_number}_edges{step_number}")(
+            pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance")))
+        label = f"round{round_number}_edges"
+        context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+        scored = []
+        for (variant, added, shape), prediction in zip(variants, predicted):
+            if not np.isfinite(prediction).all():
+                continue
+            rss, step = corrected(prediction, state_values)
+            scored.append((rss, variant, added, shape, step))
+        if not scored:
             break
-        best = (variant, added, {**best[2], "schedule": block}, refit)
-    return best
+        rss, variant, added, shape, step = min(scored, key=lambda item: item[0])
+        moves.append({"schedule": shape, "rss": rss, "from_rss": state_rss})
+        if rss >= state_rss * (1 - 1e-4):
+            break
+        block = {**block, **shape}
+        state_values = np.clip(state_values + step, ranges[:, 0], ranges[:, 1])
+        state_rss = rss
+        reached = (variant, added)
+        # the moved block's parameters take the fitted ones' places
+        fitted = [*_without(fitted, new), *added]
+        new = added
+        names = [p.name for p in fitted]
+    detail = {**detail, "edge_moves": moves}
+    if reached is None:
+        return extended, new, detail, fit
+    variant, added = reached
+    start = dict(zip(names, state_values))
+    (refit,) = context.fit(variant, f"round{round_number}_edges_fit",
+                           [Problem(context.sample_of(variant, current.fit), fitted, d.y, cal,
+                                    start)],
+                           max_iterations=context.settings.cv_iterations)
+    if refit.failed or refit.objective >= fit.objective:
+        return extended, _original_new(extended, current), detail, fit
+    return variant, added, {**detail, "schedule": {**detail["schedule"], **block}}, refit
+
+
+def _original_new(extended: Config, current: Model) -> list[Parameter]:
+    known = {p.name for p in current.config.parameters}
+    return [p for p in extended.parameters if p.name not in known]
 
 
 def _reported(parameter: Parameter) -> str:
@@ -635,10 +1297,18 @@ def _finish(context: _Context, result: Diagnosis) -> None:
     elif cause.get("extension"):
         accepted = [e for e in result.extensions if e.get("accepted")]
         cause["summary"] = (f"The residuals follow {cause['driver']}, which the model lacks: "
-                            + ", ".join(f"{e['name']} ({_fitted_text(e['fitted'])})"
+                            + ", ".join(f"{e.get('cause', e['name'])} "
+                                        f"({e.get('law') or _fitted_text(e['fitted'])})"
                                         for e in accepted)
                             + f" improves held-out CV(RMSE) {before['cvrmse']:.2%} -> "
                             f"{after['cvrmse']:.2%}.")
     else:
         cause["summary"] = (f"The residuals follow {cause['driver']}, but no candidate extension "
-                            f"improved the held-out accuracy significantly.")
+                            f"improved the cross-validated accuracy significantly: the model "
+                            f"lacks something the extension catalogue cannot express (see the "
+                            f"drivers, the residual heatmap and the lag plot).")
+    if result.unexplained and result.verdict == "model_form":
+        cause["unexplained"] = list(result.unexplained)
+        if cause.get("extension"):
+            cause["summary"] += (" Structure remains that no candidate explains: "
+                                 + ", ".join(result.unexplained) + ".")

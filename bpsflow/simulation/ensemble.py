@@ -210,21 +210,85 @@ def run_config(config: Config, run_dir: Path, backend: str | None = None) -> Con
     return copy
 
 
+class BatchFailure(BpsflowError):
+    """Instances of an in-memory batch failed (:func:`simulate_samples`): a run, not the input."""
+
+
+@dataclass
+class BatchOutcome:
+    """What :func:`simulate_batch` gives back: the outputs of the instances that ran, and the rest.
+
+    ``tidy`` holds the rows (``RESULT_COLUMNS``) of the finished instances
+    only; ``failed`` maps every other instance (the samples' index label) to
+    its error excerpt.
+    """
+
+    tidy: pd.DataFrame
+    failed: dict[int, str]
+
+
+def refused_instances(config: Config, samples: pd.DataFrame, backend: Backend) -> dict[int, str]:
+    """Instances whose values the backend refuses before running (``check_samples``), with why.
+
+    The whole batch is checked at once; only when it is refused is every
+    instance checked on its own, to name the ones at fault.
+    """
+    check_samples = getattr(backend, "check_samples", None)
+    if check_samples is None or not len(samples):
+        return {}
+    try:
+        check_samples(config, samples)
+        return {}
+    except BpsflowError:
+        pass
+    refused = {}
+    for label in samples.index:
+        try:
+            check_samples(config, samples.loc[[label]])
+        except BpsflowError as exc:
+            refused[int(label)] = exc.message
+    return refused
+
+
 def simulate_samples(config: Config, samples: pd.DataFrame, workdir: Path, backend: Backend, *,
                      jobs: int | None = None, show_progress: bool = False, what: str = "runs",
                      sequences_dir: Path | None = None) -> pd.DataFrame:
     """Tidy outputs of ``samples`` now, on ``backend``, with scratch files under ``workdir``.
 
+    :func:`simulate_batch` that refuses a partial batch.
+
+    Raises
+    ------
+    BatchFailure
+        When an instance failed (naming it and its error), so a fit never
+        works on part of a batch.
+    """
+    outcome = simulate_batch(config, samples, workdir, backend, jobs=jobs,
+                             show_progress=show_progress, sequences_dir=sequences_dir)
+    if outcome.failed:
+        instance, error = next(iter(outcome.failed.items()))
+        raise BatchFailure(f"{len(outcome.failed)} of {len(samples)} {what} failed on "
+                           f"{backend.name} in {workdir}: instance {instance}: {error}")
+    return outcome.tidy
+
+
+def simulate_batch(config: Config, samples: pd.DataFrame, workdir: Path, backend: Backend, *,
+                   jobs: int | None = None, show_progress: bool = False,
+                   sequences_dir: Path | None = None) -> BatchOutcome:
+    """Outputs of ``samples`` now, on ``backend``; a failed instance is recorded, never raised.
+
     A vectorised backend simulates the whole batch in this process; another
     runs it through :func:`run_ensemble` in ``workdir`` (cleared first, in
     parallel, ``jobs``). The instances draw their boundary sequences from
     ``sequences_dir`` (default ``workdir``; drawn there when missing).
+    Instances the backend refuses before running (a field value outside the
+    IDD's bounds, :func:`refused_instances`) are failed without running, so
+    one bad instance never stops the others.
 
-    Raises
-    ------
-    BpsflowError
-        When an instance failed (naming it and its error), so a fit never
-        works on part of a batch.
+    Returns
+    -------
+    BatchOutcome
+        The finished instances' tidy outputs and ``failed``: instance -> error.
     """
     from bpsflow.boundary import SEQUENCES_FILE, ensure_sequences
 
@@ -232,21 +296,30 @@ def simulate_samples(config: Config, samples: pd.DataFrame, workdir: Path, backe
     sequences_dir = Path(sequences_dir or workdir)
     rundir.prepare_run_dir(sequences_dir)
     ensure_sequences(run_config(config, sequences_dir))
+    if "instance" in samples.columns:
+        samples = samples.set_index("instance")
+    failed = refused_instances(run_config(config, sequences_dir), samples, backend)
+    runnable = samples[~samples.index.isin(list(failed))]
+    if not len(runnable):
+        return BatchOutcome(pd.DataFrame(columns=rundir.RESULT_COLUMNS), failed)
     if backend.vectorised:
-        batch: Batch = backend.simulate(run_config(config, sequences_dir), samples, sequences_dir)
-        bad = [r for r in batch.records if r.status != "ok"]
-        if bad:
-            raise BpsflowError(f"{len(bad)} of {len(samples)} {what} failed on {backend.name}: "
-                               f"instance {bad[0].instance}: {bad[0].error}")
-        return batch.tidy
+        batch: Batch = backend.simulate(run_config(config, sequences_dir), runnable,
+                                        sequences_dir)
+        failed.update({int(r.instance): r.error or "failed" for r in batch.records
+                       if r.status != "ok"})
+        return BatchOutcome(batch.tidy, failed)
     if workdir.exists() and workdir.resolve() != sequences_dir.resolve():
         shutil.rmtree(workdir)
     rundir.prepare_run_dir(workdir)
     if config.model.boundary is not None and workdir.resolve() != sequences_dir.resolve():
         shutil.copy2(sequences_dir / SEQUENCES_FILE, workdir / SEQUENCES_FILE)
-    summary = run_ensemble(run_config(config, workdir), samples, backend, jobs=jobs,
+    summary = run_ensemble(run_config(config, workdir), runnable, backend, jobs=jobs,
                            show_progress=show_progress, announce=show_progress)
     if summary.failed:
-        raise BpsflowError(f"{summary.failed} of {summary.total} {what} failed in {workdir}: "
-                           f"{summary.first_error}")
-    return rundir.read_results(workdir)
+        records = rundir.manifest_records(workdir)
+        failed.update({int(i): (records[int(i)].error if int(i) in records else "") or "failed"
+                       for i in runnable.index
+                       if int(i) not in records or records[int(i)].status != "ok"})
+    tidy = rundir.read_results(workdir) if summary.ok else pd.DataFrame(
+        columns=rundir.RESULT_COLUMNS)
+    return BatchOutcome(tidy, failed)

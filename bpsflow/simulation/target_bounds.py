@@ -241,7 +241,8 @@ def field_samples(config: Config, entry: TargetedField, samples: pd.DataFrame
     return values
 
 
-def check_sample_values(config: Config, samples: pd.DataFrame, where: str = "samples") -> None:
+def check_sample_values(config: Config, samples: pd.DataFrame, where: str = "samples",
+                        entries: list[TargetedField] | None = None) -> None:
     """Refuse drawn samples that give a field a value EnergyPlus rejects, naming the first.
 
     Parameters
@@ -251,6 +252,8 @@ def check_sample_values(config: Config, samples: pd.DataFrame, where: str = "sam
         Indexed by instance, one column per parameter.
     where : str
         What the samples are, for the message (``samples.parquet``).
+    entries : list of TargetedField, optional
+        ``targeted_fields(config)``, when the caller checks many samples of one config.
 
     Raises
     ------
@@ -259,7 +262,7 @@ def check_sample_values(config: Config, samples: pd.DataFrame, where: str = "sam
     """
     if "instance" in samples.columns:
         samples = samples.set_index("instance")
-    entries = targeted_fields(config)
+    entries = targeted_fields(config) if entries is None else entries
     per_field: dict[tuple[int, int], np.ndarray] = {}
     for entry in entries:
         values = field_samples(config, entry, samples)

@@ -366,14 +366,17 @@ def solar_inputs(cell: Cell, forcing: PeriodForcing, steps: slice) -> dict[str, 
         out[f"in:{i}"] = np.zeros((n, len(zenith)))
     # Transmitted diffuse first falls on the surfaces the window sees (not its
     # own wall), in proportion to their area (approximate view factors).
+    # Areas as (n, 1): an internal mass's area may differ between instances.
+    areas = [np.broadcast_to(np.asarray(s.area, dtype=float), (n,))[:, None]
+             for s in cell.opaque]
     seen = [i for i, s in enumerate(cell.opaque) if not s.outdoor]
-    seen_area = sum(cell.opaque[i].area for i in seen)
+    seen_area = sum(areas[i] for i in seen)
     targets = [(floors, transmitted_beam * on_floor), (walls, transmitted_beam * (1 - on_floor))]
-    targets += [([i], transmitted_diffuse * (cell.opaque[i].area / seen_area)) for i in seen]
+    targets += [([i], transmitted_diffuse * (areas[i] / seen_area)) for i in seen]
     for group, light in targets:
-        area = sum(cell.opaque[i].area for i in group)
+        area = sum(areas[i] for i in group)
         for i in group:
-            hit = light * (cell.opaque[i].area / area)
+            hit = light * (areas[i] / area)
             absorbed = cell.opaque[i].absorptance_in[:, None] * hit
             out[f"in:{i}"] += absorbed
             pool = pool + hit - absorbed
@@ -408,7 +411,7 @@ def constant_forcing(cell: Cell, days: int = 10, steps_per_hour: int = 6, t_out:
     row = lambda value: np.full((1, steps), float(value))  # noqa: E731
     boundary = []
     for i, surface in enumerate(cell.opaque):
-        if surface.outdoor:
+        if surface.outdoor or surface.adiabatic:
             boundary.append(None)
         else:
             value = boundary_c.get(i, 20.0) if isinstance(boundary_c, dict) else boundary_c

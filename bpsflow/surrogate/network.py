@@ -3,7 +3,8 @@
 Nodes: the cell air (mean air temperature), a radiant star node for the
 long-wave exchange between inside faces, finite-element nodes through each
 opaque surface (outside face to inside face; for boundary surfaces the
-outside face temperature is imposed), and the two glass panes (massless, as
+outside face temperature is imposed, an internal mass's back face is
+adiabatic), and the two glass panes (massless, as
 in EnergyPlus's window heat balance).
 
 Each step is implicit: ``(C/dt + K) T' = C/dt T + q`` (backward Euler for
@@ -117,7 +118,7 @@ def build_network(cell: Cell) -> Network:
         positions = len(elements) + 1
         ids: list[int | None] = []
         for p in range(positions):
-            if p == 0 and not surface.outdoor:
+            if p == 0 and not surface.outdoor and not surface.adiabatic:
                 ids.append(None)         # imposed outside face
                 continue
             c = np.zeros(n)
@@ -136,8 +137,9 @@ def build_network(cell: Cell) -> Network:
         chains.append(([i for i in ids if i is not None], links))
         inside.append(ids[-1])
         outside.append(ids[0] if surface.outdoor else None)
-        boundary_node.append(None if surface.outdoor else ids[1])
-        boundary_g.append(None if surface.outdoor else elements[0][0])
+        imposed = not (surface.outdoor or surface.adiabatic)
+        boundary_node.append(ids[1] if imposed else None)
+        boundary_g.append(elements[0][0] if imposed else None)
     pane_out, pane_in = nodes, nodes + 1
     chains.append(([pane_out, pane_in], [None]))
     capacity += [np.zeros(n), np.zeros(n)]
@@ -257,7 +259,7 @@ class FaceProbe:
         """One quantity of face ``m`` at the end of a step, ``(n,)``."""
         net = stepper.net
         node = (net.inside + [net.pane_in])[m]
-        area = stepper.opaque_areas[m]
+        area = stepper.opaque_areas[:, m]
         t_face = new[:, node]
         if term == "temperature":
             return t_face
@@ -353,8 +355,11 @@ class _Stepper:
         self.cell, self.net, self.forcing = cell, network, forcing
         self.dt, self.account = dt, account
         n = network.n
-        self.opaque_areas = np.array([s.area for s in cell.opaque] + [cell.window.area])
-        self.area_total = self.opaque_areas.sum()
+        # (n, faces): an internal mass's area may differ between instances
+        self.opaque_areas = np.stack([np.broadcast_to(np.asarray(a, dtype=float), (n,))
+                                      for a in [s.area for s in cell.opaque] + [cell.window.area]],
+                                     axis=1)
+        self.area_total = self.opaque_areas.sum(axis=1)
         self.emissivity_in = [s.emissivity_in for s in cell.opaque] + [cell.window.emissivity_in]
         self.dz = np.array([s.dz for s in cell.opaque] + [cell.window.dz])
         self.curves = [s.inside_curve for s in cell.opaque] + [cell.window.inside_curve]
@@ -408,8 +413,7 @@ class _Stepper:
         count = steps.stop - steps.start
         out = np.zeros((n, count, net.size))
         faces = net.inside + [net.pane_in]
-        absorbing = np.stack([a * e for a, e in zip(self.opaque_areas, self.emissivity_in)],
-                             axis=1)                                     # (n, faces)
+        absorbing = self.opaque_areas * np.stack(self.emissivity_in, axis=1)  # (n, faces)
         share = absorbing / absorbing.sum(axis=1, keepdims=True)
         for gain in gains:
             level = gain.design_w[:, None] * self.forcing.schedules[
@@ -452,8 +456,8 @@ class _Stepper:
         linear = 4 * SIGMA * t_star ** 3
         for m, (face, curve) in enumerate(zip(faces, self.curves)):
             h = np.maximum(curve(np.abs(t_face[:, m] - adjacent[:, m])), H_MIN)
-            g_conv = h * self.opaque_areas[m]
-            area = self.opaque_areas[m]
+            area = self.opaque_areas[:, m]
+            g_conv = h * area
             g_rad = linear * self.emissivity_in[m] * area / (1 - area / self.area_total)
             g_pairs += [g_conv, g_rad]
             offset = g_conv * gradient * self.dz[m]
@@ -478,9 +482,9 @@ class _Stepper:
             vent = vent + self._exchange_conductance(inputs, k, t_air, t_out, wind, density, cp)
         g_known.append(vent)
         rhs[:, net.AIR] += vent * t_out
-        exterior = [(node, s.area, s.emissivity_out, s.wind_factor, s.outside_wind,
-                     s.outside_natural, s.tilt)
-                    for node, s in zip(net.outside, cell.opaque) if node is not None]
+        exterior: list[tuple] = [(node, s.area, s.emissivity_out, s.wind_factor,
+                                  s.outside_wind, s.outside_natural, s.tilt)
+                                 for node, s in zip(net.outside, cell.opaque) if node is not None]
         exterior.append((net.pane_out, w.area, w.emissivity_out, w.wind_factor, w.outside_wind,
                          w.outside_natural, w.tilt))
         flows_out = []
