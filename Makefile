@@ -8,6 +8,8 @@ PY     := $(VENV)/bin/python
 BPS    := $(VENV)/bin/bpsflow
 STAMP  := $(VENV)/.installed
 JOBS   ?= 2
+# pytest-xdist workers: the suite is mostly one-core work (the surrogate), so it spreads
+TEST_WORKERS ?= 2
 DEMO_SAMPLES ?= 200
 
 .PHONY: install demo test test-fast lint bench diagnose-office-demo study study-energyplus calibrate-demo diagnose-demo clean
@@ -35,12 +37,12 @@ lint: $(STAMP)
 
 test: $(STAMP)
 	$(MAKE) lint
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 # Everything but the tests marked slow (end-to-end runs of a minute or more).
 test-fast: $(STAMP)
 	$(PY) -m ruff check bpsflow tests bench .ci
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" -n $(TEST_WORKERS) --dist worksteal
 
 bench: $(STAMP)
 	$(PY) bench/run_throughput.py --instances 200 --jobs $(JOBS)

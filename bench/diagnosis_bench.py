@@ -212,6 +212,8 @@ def main() -> None:
     parser.add_argument("--backends", default="surrogate",
                         help="comma-separated backends --random draws from")
     parser.add_argument("--jobs", type=int, default=None, help="parallel runs per diagnosis")
+    parser.add_argument("--parallel", type=int, default=1,
+                        help="--random: truths diagnosed at once, one process each (surrogate)")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--energyplus", action="store_true")
     parser.add_argument("--sweep", default="0.0001,0.0002,0.0003,0.0004,0.0005",
@@ -223,7 +225,8 @@ def main() -> None:
         from diagnosis_random import main as random_main
 
         random_main(args.random, args.seed, 40 if args.nulls is None else args.nulls,
-                    tuple(args.backends.split(",")), jobs=args.jobs)
+                    tuple(args.backends.split(",")), jobs=args.jobs,
+                    parallel=args.parallel)
         return
     args.nulls = 30 if args.nulls is None else args.nulls
     parts = set(args.parts.split(","))

@@ -59,6 +59,7 @@ per truth; not a sweep per family.
 from __future__ import annotations
 
 import math
+import os
 import statistics
 import time
 import traceback
@@ -616,7 +617,8 @@ def anchor_ratio(backend: str, work: Path) -> float:
         s = WIND_LIMIT_SCENARIO
         anchor = Truth(-1, "infiltration", "test_cell", backend, s["start"], s["setpoint_c"],
                        None, 0.0, 0, [])
-        directory = work / f"anchor_{backend}"
+        # one folder per process: truths diagnosed in parallel each measure their own anchor
+        directory = work / f"anchor_{backend}_{os.getpid()}"
         base = user_config(anchor, directory)
         zone = build_truth(anchor).zone
         leak = _infiltration_text("bpsflow_bench_anchor", "bpsflow_bench_anchor_always", zone,
@@ -1052,8 +1054,48 @@ def markdown(rows: list[dict], null_rows: list[dict], summary: dict, command: st
     return "\n".join(lines) + "\n"
 
 
+def _print_row(r: dict) -> None:
+    print(f"  {r['case']}: truth {r['truth']} → {r['verdict']} / {r['reported']} {r['fitted']} "
+          f"size errors {r['size_errors']} gain {r['gain_ratio']} {r['seconds']:.0f} s "
+          f"{r['status']} {r['error']}", flush=True)
+
+
+def run_truths(truths: list[Truth], work: Path, jobs: int | None = None,
+               parallel: int = 1) -> list[dict]:
+    """:func:`run_truth` for every truth, in ``parallel`` processes (rows in truth order).
+
+    Each diagnosis on the surrogate runs in one process, so on a machine of
+    several cores the truths themselves are the unit of parallel work; on
+    EnergyPlus keep ``parallel`` 1 and give the runs ``jobs`` instead.
+    """
+    if parallel <= 1:
+        rows = []
+        for truth in truths:
+            print(f"{truth.label}: {truth.describe()}", flush=True)
+            rows.append(run_truth(truth, work, jobs))
+            _print_row(rows[-1])
+        return rows
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # spawn, not fork: the parent may hold JAX's threads, which a fork would copy half-alive
+    context = multiprocessing.get_context("spawn")
+    done: dict[int, dict] = {}
+    with ProcessPoolExecutor(parallel, mp_context=context) as pool:
+        futures = {pool.submit(run_truth, truth, work, jobs): truth for truth in truths}
+        for future in as_completed(futures):
+            truth = futures[future]
+            try:
+                done[truth.index] = future.result()
+            except Exception as exc:                           # noqa: BLE001
+                done[truth.index] = failed_row(truth, None, "crash", _error(exc), 0.0)
+            print(f"{truth.label}: {truth.describe()}", flush=True)
+            _print_row(done[truth.index])
+    return [done[truth.index] for truth in truths]
+
+
 def main(count: int, seed: int | None, nulls: int, backends: tuple[str, ...],
-         jobs: int | None = None) -> dict:
+         jobs: int | None = None, parallel: int = 1) -> dict:
     """Run the randomised benchmark; print the seed; write the table and the figures."""
     from benchlib import record, scratch
 
@@ -1063,14 +1105,7 @@ def main(count: int, seed: int | None, nulls: int, backends: tuple[str, ...],
                f"--nulls {nulls} --backends {','.join(backends)}")
     print(f"random diagnosis benchmark: seed {seed} ({command})", flush=True)
     work = scratch("diagnosis-random-")
-    rows = []
-    for truth in draw_truths(count, seed, backends):
-        print(f"{truth.label}: {truth.describe()}", flush=True)
-        rows.append(run_truth(truth, work, jobs))
-        r = rows[-1]
-        print(f"  truth {r['truth']} → {r['verdict']} / {r['reported']} {r['fitted']} "
-              f"size errors {r['size_errors']} gain {r['gain_ratio']} {r['seconds']:.0f} s "
-              f"{r['status']} {r['error']}", flush=True)
+    rows = run_truths(draw_truths(count, seed, backends), work, jobs, parallel)
     null_rows = run_nulls(nulls, seed, work, "surrogate", jobs=jobs) if nulls else []
     summary = summarise(rows, null_rows)
     # a run on other backends keeps its own table and figures beside the surrogate's

@@ -64,8 +64,10 @@ def quiet(_text: str) -> None:
 # ---------------------------------------------------------------------------
 # Hidden model-form effects on the surrogate
 
-CASES = {"wind_infiltration": 0.004, "office_gain": 150.0, "east_aperture": 1.0,
-         "constant_infiltration": 0.02}
+# The weekday office gain and the constant leak are the same families as the
+# weekend/radiant gain and the V² law below, and the randomised benchmark draws
+# them all; these two keep the linear wind law and the facade choice in make test.
+CASES = {"wind_infiltration": 0.004, "east_aperture": 1.0}
 
 
 @pytest.mark.parametrize("effect", sorted(CASES))
@@ -162,8 +164,8 @@ def test_false_model_form_verdicts_stay_rare_over_null_datasets(surrogate_base, 
 
 @pytest.mark.slow
 def test_weekend_only_gain_is_found_with_its_size(tmp_path):
-    """A weekend 10–16 h gain over 30 days: every whole-week fold holds two of its days."""
-    base = base_config(tmp_path / "base", days=30)
+    """A weekend 10–16 h gain over 24 days: every whole-week fold holds two of its days."""
+    base = base_config(tmp_path / "base", days=24)
     case = make_case(base, tmp_path / "truth", "weekend_gain", 300.0, FITTED_TRUTH, seed=4)
     config = load_config(base)
     result = diagnose(config, read_measured(case.measured, config).frame, tmp_path / "out",
