@@ -52,6 +52,9 @@ bench: $(STAMP)
 	$(PY) bench/calibration_bench.py
 	$(PY) bench/refine_bench.py --truths 4
 	$(PY) bench/diagnosis_bench.py --nulls 30 --seeds 10 --energyplus
+	$(PY) bench/diagnosis_bench.py --parts shipped-energyplus --jobs $(JOBS)
+	$(PY) bench/diagnosis_bench.py --random 60 --nulls 40 --parallel $(JOBS)
+	$(PY) bench/diagnosis_bench.py --random 12 --nulls 0 --backends energyplus --jobs $(JOBS)
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed
