@@ -19,6 +19,7 @@ config without the section diagnoses its first measured output::
       cv_candidates: 3            # causes cross-validated per round (the best by BIC)
       cv_iterations: 6            # refit steps per fold, from the calibration fit
       cv_refit: null              # simulated | linearised (default: simulated on the surrogate)
+      shape_screen: true          # no driver significant: test every candidate's simulated shape
 
 ``extensions: []`` switches the candidate extensions off: the diagnosis still
 tests the residuals and checks the existing parameters, and says that no
@@ -102,6 +103,7 @@ class DiagnosisSettings(BaseModel):
     cv_candidates: int = Field(default=3, ge=1)
     cv_iterations: int = Field(default=6, ge=1)
     cv_refit: Literal["simulated", "linearised"] | None = None
+    shape_screen: bool = True
     gain_blocks: int = Field(default=4, ge=1)
     parameter_candidates: int = Field(default=3, ge=1)
     suspects: list[str] | None = None

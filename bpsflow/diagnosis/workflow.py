@@ -424,8 +424,17 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
             f"significant driver(s): {', '.join(t.name for t in significant)}" if significant
             else "no significant structure in the residuals")
             + (f"; suggestive: {', '.join(t.name for t in suggestive)}" if suggestive else ""))
+        called: list[Candidate] | None = None
         if not significant and not suggestive:
-            break
+            if not settings.shape_screen:
+                break
+            # No weather or calendar driver passes its gates, but an effect that acts
+            # with a delay (stored heat released at the next morning's reheat) is not
+            # synchronous with any driver: test each candidate's own simulated shape.
+            called = _shape_screen(context, result, current, tests, residual,
+                                   accepted_causes, round_number, announce)
+            if not called:
+                break
         if round_number == 1 and significant:
             explained = _parameter_check(context, result, current, residual, significant)
             if explained is not None:
@@ -434,8 +443,8 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
             result.verdict = "model_form"
             result.cause = {"driver": significant[0].name, "parameter": None,
                             "extension": None, "summary": ""}
-        candidates = candidate_causes(context, current, significant + suggestive,
-                                      accepted_causes)
+        candidates = called if called is not None else candidate_causes(
+            context, current, significant + suggestive, accepted_causes)
         if not candidates:
             announce("no candidate extension left for these drivers")
             result.unexplained = [t.name for t in significant]
@@ -490,6 +499,75 @@ def _suggestive(context: _Context, tests: list) -> list:
     return [t for t in tests if not t.significant and t.p_adjusted < settings.candidate_alpha
             and t.share >= settings.min_share and t.amplitude >= min_amplitude
             and t.sign_consistent]
+
+
+def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: list,
+                  residual: np.ndarray, accepted: set[str], round_number: int,
+                  announce: Announce) -> list[Candidate]:
+    """The candidates whose simulated effect shape the residuals carry, tested like drivers.
+
+    Every candidate family is written (all faces, gain blocks, law terms) and
+    each new parameter is stepped once (the runs of :func:`_screen`); the
+    change of the prediction, with the current fit's parameter directions
+    partialled out (Frisch–Waugh), is that variant's regressor. The residuals
+    are tested against it exactly as against a driver
+    (:func:`bpsflow.diagnosis.structure.test_drivers`: Newey–West Wald test,
+    fixed-b reference, share, amplitude and stable sign), Holm-adjusted over
+    all variants at ``alpha``; the fitted step must also point into the
+    parameter's allowed range (an extension cannot remove heat it never
+    added). Those that pass go on to the fitted, cross-validated acceptance
+    of :func:`_try_extensions`, which alone can make a verdict.
+    """
+    from bpsflow.diagnosis.structure import _test_one, holm
+
+    d, settings = context.data, context.settings
+    cal = d.calibration
+    candidates = candidate_causes(context, current, tests, accepted)
+    if not candidates:
+        return []
+    union = current.config
+    for candidate in candidates:
+        for extended, _, _ in candidate.variants:
+            union = _merge(union, extended)
+    flat = [(c, v) for c in candidates for v in c.variants]
+    union_sample = context.sample_of(union, current.fit)
+    columns = _screen_columns(context, union, union_sample, current, [v for _, v in flat],
+                              round_number, "shape")
+    controls = current.fit.jacobian[cal]
+    y = residual[cal]
+    outcomes = []
+    for (candidate, variant), design in zip(flat, columns):
+        if design is None:
+            outcomes.append(None)
+            continue
+        if controls.size:
+            design = design - controls @ np.linalg.lstsq(controls, design, rcond=None)[0]
+        frame = pd.DataFrame(design, columns=[p.name for p in variant[1]])
+        test = _test_one(candidate.cause, y, frame, design[:, 0], folds=settings.folds,
+                         hac_lags=None, reference="fixed-b")
+        forward = test is not None and next(iter(test.coefficients.values()), 0.0) > 0
+        outcomes.append((test, forward))
+    tested = [i for i, o in enumerate(outcomes) if o is not None and o[0] is not None]
+    adjusted = holm([outcomes[i][0].p_value for i in tested]) if tested else []
+    min_amplitude = settings.min_amplitude * abs(float(np.mean(d.y[cal])))
+    passed: dict[int, tuple[float, int]] = {}      # candidate id -> (p_adjusted, flat index)
+    record = []
+    for i, p_adjusted in zip(tested, adjusted):
+        test, forward = outcomes[i]
+        ok = bool(p_adjusted < settings.alpha and test.share >= settings.min_share
+                  and test.amplitude >= min_amplitude and test.sign_consistent and forward)
+        record.append({"cause": flat[i][0].cause, "parameters": [p.name for p in flat[i][1][1]],
+                       "p_adjusted": float(p_adjusted), "share": float(test.share),
+                       "forward": forward, "passed": ok})
+        key = id(flat[i][0])
+        if ok and (key not in passed or p_adjusted < passed[key][0]):
+            passed[key] = (float(p_adjusted), i)
+    result.rounds[-1]["shape_screen"] = record
+    called = [c for c in candidates if id(c) in passed]
+    announce("  shape screen: " + (", ".join(
+        f"{c.cause} (p {passed[id(c)][0]:.2g})" for c in called) if called
+        else "no candidate's simulated shape is in the residuals"))
+    return called
 
 
 def _driver_record(test) -> dict:
@@ -959,6 +1037,47 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
 
     d = context.data
     cal = d.calibration
+    designs = _screen_columns(context, union, union_sample, current, variants, round_number,
+                              "screen")
+    existing_ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
+    residual = d.y[cal] - current.fit.prediction[cal]
+    out = []
+    for (_, free, _), new_columns in zip(variants, designs):
+        if new_columns is None:
+            out.append(np.inf)
+            continue
+        kept = [p for p in current.fitted if p.name not in {q.name for q in free}]
+        keep_index = [i for i, p in enumerate(current.fitted) if p in kept]
+        lower = list(existing_ranges[keep_index, 0] - current.fit.values[keep_index])
+        upper = list(existing_ranges[keep_index, 1] - current.fit.values[keep_index])
+        for parameter in free:
+            low, high = parameter_range(parameter)
+            now = float(union_sample.get(parameter.name, 0.0))
+            lower.append(low - now)
+            upper.append(high - now)
+        design = np.column_stack([current.fit.jacobian[cal][:, keep_index], new_columns])
+        low_bounds, high_bounds = np.array(lower), np.maximum(np.array(upper),
+                                                                np.array(lower) + 1e-12)
+        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
+        solution = lsq_linear(design / scale, residual, bounds=(low_bounds * scale,
+                                                                 high_bounds * scale))
+        left = residual - (design / scale) @ solution.x
+        out.append(comparison.bic(left, len(kept) + len(free)))
+    return out
+
+
+def _screen_columns(context: _Context, union: Config, union_sample: dict, current: Model,
+                    variants: list[tuple[Config, list[Parameter], dict]], round_number: int,
+                    label: str) -> list[np.ndarray | None]:
+    """Per variant, the change of the prediction per unit of each new parameter (cal. hours).
+
+    One batch, one run per new parameter: each is set a quarter of its range
+    above its current value (a parameter that acts only through the
+    variant's first one, e.g. a gain's radiant fraction, with the first one
+    set too). ``None`` for a variant with a failed run (noted).
+    """
+    d = context.data
+    cal = d.calibration
     rows: list[dict[str, float]] = []
     plan = []           # per variant: [(parameter, step, row of its point, row of its base)]
     for _, free, _ in variants:
@@ -981,39 +1100,23 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
         plan.append(steps)
     samples = pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance"))
     started = time.perf_counter()
-    predicted = context.simulator(union, f"round{round_number}_screen")(samples) if rows \
-        else np.zeros((0, len(d.y)))
-    context.timings[f"round{round_number}_screen"] = time.perf_counter() - started
-    context.step(f"round{round_number}_screen")
-    existing_ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
-    residual = d.y[cal] - current.fit.prediction[cal]
-    out = []
+    tag = f"round{round_number}_{label}"
+    predicted = context.simulator(union, tag)(samples) if rows else np.zeros((0, len(d.y)))
+    context.timings[tag] = time.perf_counter() - started
+    context.step(tag)
+    out: list[np.ndarray | None] = []
     for (_, free, _), steps in zip(variants, plan):
-        kept = [p for p in current.fitted if p.name not in {q.name for q in free}]
-        keep_index = [i for i, p in enumerate(current.fitted) if p in kept]
-        columns = [current.fit.jacobian[cal][:, keep_index]]
-        lower = list(existing_ranges[keep_index, 0] - current.fit.values[keep_index])
-        upper = list(existing_ranges[keep_index, 1] - current.fit.values[keep_index])
-        for parameter, step, row, base_row in steps:
+        columns = []
+        for _parameter, step, row, base_row in steps:
             reference = current.fit.prediction if base_row is None else predicted[base_row]
-            columns.append((predicted[row] - reference)[cal][:, None] / step)
-            low, high = parameter_range(parameter)
-            now = float(union_sample.get(parameter.name, 0.0))
-            lower.append(low - now)
-            upper.append(high - now)
-        design = np.column_stack(columns)
+            columns.append((predicted[row] - reference)[cal] / step)
+        design = np.column_stack(columns) if columns else np.zeros((int(cal.sum()), 0))
         if not np.isfinite(design).all():       # a screening run failed
-            context.notes.append(f"screen of round {round_number}: a run of a candidate with "
-                                 f"{', '.join(p.name for p in free)} failed; it is ranked last")
-            out.append(np.inf)
+            context.notes.append(f"{label} of round {round_number}: a run of a candidate with "
+                                 f"{', '.join(p.name for p in free)} failed; it is left out")
+            out.append(None)
             continue
-        low_bounds, high_bounds = np.array(lower), np.maximum(np.array(upper),
-                                                                np.array(lower) + 1e-12)
-        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
-        solution = lsq_linear(design / scale, residual, bounds=(low_bounds * scale,
-                                                                 high_bounds * scale))
-        left = residual - (design / scale) @ solution.x
-        out.append(comparison.bic(left, len(kept) + len(free)))
+        out.append(design)
     return out
 
 
