@@ -518,7 +518,7 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
     added). Those that pass go on to the fitted, cross-validated acceptance
     of :func:`_try_extensions`, which alone can make a verdict.
     """
-    from bpsflow.diagnosis.structure import _test_one, holm
+    from bpsflow.diagnosis.structure import DriverTest, _test_one, holm
 
     d, settings = context.data, context.settings
     cal = d.calibration
@@ -535,25 +535,22 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
                               round_number, "shape")
     controls = current.fit.jacobian[cal]
     y = residual[cal]
-    outcomes = []
-    for (candidate, variant), design in zip(flat, columns):
+    tested: list[tuple[int, DriverTest, bool]] = []     # (flat index, test, step forward)
+    for position, ((candidate, variant), design) in enumerate(zip(flat, columns)):
         if design is None:
-            outcomes.append(None)
             continue
         if controls.size:
             design = design - controls @ np.linalg.lstsq(controls, design, rcond=None)[0]
         frame = pd.DataFrame(design, columns=[p.name for p in variant[1]])
         test = _test_one(candidate.cause, y, frame, design[:, 0], folds=settings.folds,
                          hac_lags=None, reference="fixed-b")
-        forward = test is not None and next(iter(test.coefficients.values()), 0.0) > 0
-        outcomes.append((test, forward))
-    tested = [i for i, o in enumerate(outcomes) if o is not None and o[0] is not None]
-    adjusted = holm([outcomes[i][0].p_value for i in tested]) if tested else []
+        if test is not None:
+            tested.append((position, test, next(iter(test.coefficients.values()), 0.0) > 0))
+    adjusted = holm([test.p_value for _, test, _ in tested]) if tested else np.zeros(0)
     min_amplitude = settings.min_amplitude * abs(float(np.mean(d.y[cal])))
     passed: dict[int, tuple[float, int]] = {}      # candidate id -> (p_adjusted, flat index)
     record = []
-    for i, p_adjusted in zip(tested, adjusted):
-        test, forward = outcomes[i]
+    for (i, test, forward), p_adjusted in zip(tested, adjusted):
         ok = bool(p_adjusted < settings.alpha and test.share >= settings.min_share
                   and test.amplitude >= min_amplitude and test.sign_consistent and forward)
         record.append({"cause": flat[i][0].cause, "parameters": [p.name for p in flat[i][1][1]],
