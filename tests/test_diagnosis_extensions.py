@@ -65,6 +65,12 @@ def nominal(config: Config) -> dict[str, float]:
     return {p.name: float(p.distribution.nominal) for p in config.parameters}
 
 
+def nested_point(config: Config, extended: Config) -> dict[str, float]:
+    """``config``'s nominal inputs with every extension parameter at its nesting value."""
+    return {**nominal(config), **{p.name: p.provenance["nested_at"] for p in extended.parameters
+                                  if p.group == "extension"}}
+
+
 def simulate(config: Config, rows: list[dict], work: Path, backend: str) -> np.ndarray:
     """Heating power (W) of each row over :data:`HOURS`, shape (rows, hours)."""
     return output_simulator(config, OUTPUT, HOURS, backend=backend, work_dir=work)(
@@ -171,16 +177,14 @@ def test_new_extensions_are_nested_at_zero_on_the_surrogate(surrogate_base, tmp_
     """Every new parameter at 0 reproduces the original model; each one moves the output."""
     config = surrogate_base
     extended = all_extensions(config, tmp_path / "ext")
-    base = nominal(config)
-    zero = {**base, **{p.name: p.provenance["nested_at"] for p in extended.parameters
-                     if p.group == "extension"}}
+    zero = nested_point(config, extended)
     rows = [zero, {**zero, "scheduled_gain_radiant_fraction": 0.6}]
     rows += [{**zero, name: value} for name, value in INFILTRATION_TERMS.items()]
     rows += [{**zero, "scheduled_gain_w": 300.0},
              {**zero, "scheduled_gain_w": 300.0, "scheduled_gain_radiant_fraction": 0.6},
              {**zero, "internal_mass_area_m2": 60.0}]
     predicted = simulate(extended, rows, tmp_path / "runs", "surrogate")
-    original = simulate(config, [base], tmp_path / "runs0", "surrogate")[0]
+    original = simulate(config, [nominal(config)], tmp_path / "runs0", "surrogate")[0]
     # infiltration and gain are exactly nested; the mass keeps a token 0.001 m2
     np.testing.assert_allclose(predicted[1], predicted[0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(predicted[0], original, rtol=0, atol=0.05)
@@ -313,15 +317,13 @@ def test_new_extensions_are_nested_at_zero_on_energyplus(tmp_path):
     """
     config = base_config(tmp_path / "base", "energyplus")
     extended = all_extensions(config, tmp_path / "ext")
-    base = nominal(config)
-    zero = {**base, **{p.name: p.provenance["nested_at"] for p in extended.parameters
-                     if p.group == "extension"}}
+    zero = nested_point(config, extended)
     rows = [zero, {**zero, "scheduled_gain_radiant_fraction": 0.6}]
     rows += [{**zero, name: value} for name, value in INFILTRATION_TERMS.items()]
     rows += [{**zero, "scheduled_gain_w": 300.0, "scheduled_gain_radiant_fraction": 0.6},
              {**zero, "internal_mass_area_m2": 60.0}]
     predicted = simulate(extended, rows, tmp_path / "runs", "energyplus")
-    original = simulate(config, [base], tmp_path / "runs0", "energyplus")[0]
+    original = simulate(config, [nominal(config)], tmp_path / "runs0", "energyplus")[0]
     np.testing.assert_allclose(predicted[1], predicted[0], rtol=0, atol=1e-6)
     np.testing.assert_allclose(predicted[0], original, rtol=0, atol=0.5)
     assert np.mean(np.abs(predicted[0] - original)) < 0.1

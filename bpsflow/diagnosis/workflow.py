@@ -560,6 +560,9 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
         if ok and (key not in passed or p_adjusted < passed[key][0]):
             passed[key] = (float(p_adjusted), i)
     result.rounds[-1]["shape_screen"] = record
+    for candidate in candidates:
+        candidate.screen_columns = [design for (c, _), design in zip(flat, columns)
+                                    if c is candidate]
     called = [c for c in candidates if id(c) in passed]
     announce("  shape screen: " + (", ".join(
         f"{c.cause} (p {passed[id(c)][0]:.2g})" for c in called) if called
@@ -693,6 +696,8 @@ class Candidate:
     driver: str
     variants: list[tuple[Config, list[Parameter], dict]]
     law_terms: bool = False
+    #: per variant, its screening columns if the shape screen already ran them
+    screen_columns: list[np.ndarray | None] | None = None
 
 
 #: Driver groups that call each extension family. Irradiance and time-of-day
@@ -859,8 +864,11 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     announce(f"fitting {len(candidates)} candidate cause(s) ({len(flat)} variant(s)): "
              + ", ".join(f"{c.cause} ({c.driver})" for c in candidates))
     union_sample = context.sample_of(union, current.fit)
+    designs: list[np.ndarray | None] | None = None
+    if all(c.screen_columns is not None for c in candidates):
+        designs = [d for c in candidates for d in (c.screen_columns or [])]
     screened = _screen(context, union, union_sample, current, [v for _, v in flat],
-                       round_number)
+                       round_number, designs)
     # per cause its best variant by the screen; the best causes are fitted for real
     best_variant: dict[int, int] = {}
     for position, (candidate, _) in enumerate(flat):
@@ -1018,7 +1026,8 @@ def _unchanged(scores_now: dict) -> dict:
 
 
 def _screen(context: _Context, union: Config, union_sample: dict, current: Model,
-            variants: list[tuple[Config, list[Parameter], dict]], round_number: int) -> list[float]:
+            variants: list[tuple[Config, list[Parameter], dict]], round_number: int,
+            designs: list[np.ndarray | None] | None = None) -> list[float]:
     """Linearised BIC of every variant, from one batch of one run per new parameter.
 
     Each variant's new parameters are set, one at a time, a quarter of their
@@ -1034,8 +1043,9 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
 
     d = context.data
     cal = d.calibration
-    designs = _screen_columns(context, union, union_sample, current, variants, round_number,
-                              "screen")
+    if designs is None:         # not already run by the shape screen
+        designs = _screen_columns(context, union, union_sample, current, variants,
+                                  round_number, "screen")
     existing_ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
     residual = d.y[cal] - current.fit.prediction[cal]
     out = []
