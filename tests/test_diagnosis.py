@@ -320,6 +320,48 @@ def test_fit_many_finds_known_least_squares_optima(surrogate_base):
         assert fit.jacobian[:, 0] == pytest.approx(basis[:, 0], rel=1e-6)
 
 
+def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(surrogate_base):
+    """A response periodic in its parameter has many local minima of the squared error.
+
+    From the nominal value alone the Levenberg–Marquardt search stops in the
+    nearest one; the screened starts of :func:`starting_points` reach the
+    true value (known: the data are the model at it, plus small noise).
+    """
+    from bpsflow.diagnosis.fitting import parameter_range
+    from bpsflow.diagnosis.workflow import Data, starting_points
+
+    config = load_config(surrogate_base)
+    parameter = next(p for p in config.parameters if p.name == "wall_stack_coefficient")
+    low, high = parameter_range(parameter)
+    truth = low + 0.83 * (high - low)
+    hours = np.arange(400)
+    wave = 2 * np.pi * hours / 24.0
+
+    def response(value: np.ndarray) -> np.ndarray:
+        # the phase turns 4 times over the range (4 basins of the squared error) while
+        # the amplitude grows, so only one basin holds the data's value
+        unit = (value - low) / (high - low)
+        return 1000.0 + (100.0 + 300.0 * unit[:, None]) * np.cos(
+            wave[None, :] - 8 * np.pi * unit[:, None])
+
+    def simulate(samples: pd.DataFrame) -> np.ndarray:
+        return response(samples["wall_stack_coefficient"].to_numpy(dtype=float))
+
+    rng = np.random.default_rng(3)
+    measured = response(np.array([truth]))[0] + rng.normal(0, 2.0, hours.size)
+    calibration = hours < 300
+    data = Data(output="heating_power_w", timestamps=pd.DatetimeIndex([]), y=measured,
+                calibration=calibration, drivers=pd.DataFrame(), indoor=np.zeros(hours.size))
+    sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    starts = starting_points(simulate, sample, [parameter], [data], screen=16, keep=3, seed=0)
+    assert starts[0][0] is None and len(starts[0]) == 4
+    fits = fit_many(simulate, [Problem(sample, [parameter], measured, calibration, start)
+                               for start in starts[0]])
+    nominal_only, best = fits[0], min(fits, key=lambda f: f.objective)
+    assert best.values[0] == pytest.approx(truth, abs=1e-3 * (high - low))
+    assert nominal_only.objective > 10 * best.objective
+
+
 @pytest.mark.slow
 def test_extension_variants_coexist_and_are_nested_at_zero(surrogate_base, tmp_path):
     """Two variants of one extension in one model; at zero the model is the original."""

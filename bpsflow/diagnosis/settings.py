@@ -20,6 +20,9 @@ config without the section diagnoses its first measured output::
       cv_iterations: 6            # refit steps per fold, from the calibration fit
       cv_refit: null              # simulated | linearised (default: simulated on the surrogate)
       shape_screen: true          # no driver significant: test every candidate's simulated shape
+      start_screen: 16            # Latin hypercube points screened for the base fit's starts
+      fit_starts: 3               # ... the best of them fitted besides the nominal start
+      parameter_margin_bic: 6.0   # an extension beats a refitted existing input by this BIC
 
 ``extensions: []`` switches the candidate extensions off: the diagnosis still
 tests the residuals and checks the existing parameters, and says that no
@@ -78,6 +81,20 @@ class DiagnosisSettings(BaseModel):
     multi-zone model whose output names no zone needs ``zone``
     (:func:`bpsflow.diagnosis.extensions.diagnosis_zone`).
 
+    ``start_screen`` and ``fit_starts``: the fit of the existing parameters
+    (the base model every verdict is measured against) starts from their
+    nominal values and from the ``fit_starts`` best of ``start_screen``
+    Latin-hypercube points over their ranges (one batch of runs, seeded by
+    ``seed``); the lowest objective is kept. One local search can stop in a
+    local minimum: a reheat after a night setback makes the objective rough
+    on EnergyPlus. ``start_screen: 0`` fits from the nominal values only.
+
+    ``parameter_margin_bic``: when a plausible change of an existing input
+    removes the structure, the candidate extensions are still fitted and
+    cross-validated; the best one that passes replaces the ``parameter``
+    verdict only if its BIC is lower by this margin (Kass & Raftery 1995:
+    above 6, strong evidence), so a tie goes to the existing input.
+
     ``gain_alpha`` is the one-sided level of the held-out loss-difference
     test an extension must pass (besides a lower BIC and a lower held-out
     CV(RMSE)) to be accepted.
@@ -104,6 +121,9 @@ class DiagnosisSettings(BaseModel):
     cv_iterations: int = Field(default=6, ge=1)
     cv_refit: Literal["simulated", "linearised"] | None = None
     shape_screen: bool = True
+    start_screen: int = Field(default=16, ge=0)
+    fit_starts: int = Field(default=3, ge=0)
+    parameter_margin_bic: float = Field(default=6.0, ge=0)
     gain_blocks: int = Field(default=4, ge=1)
     parameter_candidates: int = Field(default=3, ge=1)
     suspects: list[str] | None = None

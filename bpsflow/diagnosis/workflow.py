@@ -260,8 +260,7 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
              + (f", {len(data)} datasets" if len(data) > 1 else ""))
     started = time.perf_counter()
     try:
-        fits = context.fit(config, "base", [Problem(context.sample_of(config), fitted, d.y,
-                                                    d.calibration) for d in data])
+        fits = _base_fits(context, config, fitted, data)
     except Exception as exc:
         if isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure):
             raise
@@ -355,6 +354,54 @@ class _Context:
             min_amplitude=min_amplitude, folds=s.folds)
 
 
+def starting_points(simulate, base_sample: dict[str, float], fitted: list[Parameter],
+                    data: list[Data], screen: int, keep: int, seed: int
+                    ) -> list[list[dict[str, float] | None]]:
+    """Per dataset, the starts of the base fit: nominal (``None``) and the best screened points.
+
+    ``screen`` Latin-hypercube points over the fitted parameters' ranges run
+    in one batch of ``simulate`` (shared by every dataset); per dataset the
+    ``keep`` with the smallest mean squared error on the calibration hours
+    are kept. Points that did not run are never kept.
+    """
+    from bpsflow.sampling import latin_hypercube_unit
+
+    if screen <= 0 or keep <= 0 or not fitted:
+        return [[None] for _ in data]
+    unit = latin_hypercube_unit(screen, len(fitted), seed)
+    bounds = np.array([parameter_range(p) for p in fitted]).reshape(-1, 2)
+    values = bounds[:, 0] + unit * (bounds[:, 1] - bounds[:, 0])
+    points = [{p.name: float(v) for p, v in zip(fitted, row)} for row in values]
+    predicted = simulate(pd.DataFrame([{**base_sample, **point} for point in points],
+                                      index=pd.RangeIndex(len(points), name="instance")))
+    starts: list[list[dict[str, float] | None]] = []
+    for d in data:
+        errors = np.mean((d.y[d.calibration] - predicted[:, d.calibration]) ** 2, axis=1)
+        errors = np.where(np.isfinite(errors), errors, np.inf)
+        best = [int(i) for i in np.argsort(errors)[:keep] if np.isfinite(errors[i])]
+        starts.append([None, *(points[i] for i in best)])
+    return starts
+
+
+def _base_fits(context: _Context, config: Config, fitted: list[Parameter],
+               data: list[Data]) -> list[Fit]:
+    """The base fit of every dataset: a local search from each start, the lowest objective kept."""
+    settings = context.settings
+    sample = context.sample_of(config)
+    starts = starting_points(context.simulator(config, "base_starts"), sample, fitted, data,
+                             settings.start_screen, settings.fit_starts, settings.seed)
+    problems = [Problem(sample, fitted, d.y, d.calibration, start)
+                for d, mine in zip(data, starts) for start in mine]
+    fits = context.fit(config, "base", problems)
+    chosen, first = [], 0
+    for mine in starts:
+        group = fits[first:first + len(mine)]
+        first += len(mine)
+        ran = [f for f in group if not f.failed]
+        chosen.append(min(ran, key=lambda f: f.objective) if ran else group[0])
+    return chosen
+
+
 def _diagnose_one(context: _Context, base: Model, announce: Announce) -> Diagnosis:
     """Every round on one dataset; a step that fails ends it with a note, never a crash.
 
@@ -435,16 +482,18 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
                                    accepted_causes, round_number, announce)
             if not called:
                 break
+        explained = None
         if round_number == 1 and significant:
             explained = _parameter_check(context, result, current, residual, significant)
-            if explained is not None:
-                _accept_parameter(result, *explained, significant[0].name, announce)
-                break
-            result.verdict = "model_form"
-            result.cause = {"driver": significant[0].name, "parameter": None,
-                            "extension": None, "summary": ""}
+            if explained is None:
+                result.verdict = "model_form"
+                result.cause = {"driver": significant[0].name, "parameter": None,
+                                "extension": None, "summary": ""}
         candidates = called if called is not None else candidate_causes(
             context, current, significant + suggestive, accepted_causes)
+        if explained is not None and not candidates:
+            _accept_parameter(result, *explained, significant[0].name, announce)
+            break
         if not candidates:
             announce("no candidate extension left for these drivers")
             result.unexplained = [t.name for t in significant]
@@ -453,6 +502,16 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
                                   announce)
         passed = [(e, m) for e, m in entries if e["passed"] and m is not None]
         result.extensions += [e for e, _ in entries]
+        if explained is not None:
+            # a mis-valued input and a missing piece of physics can leave the same residual
+            # shape (ground reflectance and a roof aperture): they compete on BIC, and the
+            # existing input, the smaller change to the model, wins a tie
+            if not _extension_beats_parameter(context, explained[0], passed, announce):
+                _accept_parameter(result, *explained, significant[0].name, announce)
+                break
+            result.verdict = "model_form"
+            result.cause = {"driver": significant[0].name, "parameter": None,
+                            "extension": None, "summary": ""}
         if not passed:
             announce("no candidate extension improved the cross-validated accuracy "
                      "significantly")
@@ -666,6 +725,32 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
     return (Model(config, fitted, fit, f"parameter {e.name}"),
             {"name": e.name, "nominal": c.nominal, "fitted": float(fit.named[e.name]),
              "plausible_range": [c.lower, c.upper]})
+
+
+def _extension_beats_parameter(context: _Context, parameter_model: Model,
+                               passed: list[tuple[dict, Model | None]],
+                               announce: Announce) -> bool:
+    """Whether the best accepted extension's BIC beats the refitted parameter's decisively.
+
+    Both are the base model plus free parameters fitted on the same
+    calibration hours, so their BIC (seed eq. 12's penalty on the parameter
+    count) compares them; the extension must be lower by
+    ``parameter_margin_bic`` (Kass & Raftery 1995: 6 is strong evidence).
+    """
+    d, cal = context.data, context.data.calibration
+    if not passed:
+        return False
+    bic_parameter = comparison.bic(d.y[cal] - parameter_model.fit.prediction[cal],
+                                   len(parameter_model.fitted))
+    best = min(passed, key=lambda pair: pair[0]["bic"]["after"])[0]
+    margin = bic_parameter - best["bic"]["after"]
+    best["versus_parameter"] = {"parameter_bic": float(bic_parameter),
+                                "delta_bic": float(margin)}
+    wins = margin > context.settings.parameter_margin_bic
+    announce(f"  {best['cause']} against the refitted {parameter_model.label}: BIC "
+             f"{best['bic']['after']:.1f} vs {bic_parameter:.1f}: "
+             + ("the extension explains more" if wins else "the existing input is kept"))
+    return wins
 
 
 def _accept_parameter(result: Diagnosis, model: Model, parameter_fit: dict, driver: str,
