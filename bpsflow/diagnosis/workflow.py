@@ -1497,6 +1497,12 @@ def _finish(context: _Context, result: Diagnosis) -> None:
                                         for e in accepted)
                             + f" improves held-out CV(RMSE) {before['cvrmse']:.2%} -> "
                             f"{after['cvrmse']:.2%}.")
+        rival = next((e["versus_parameter"] for e in accepted if "versus_parameter" in e), None)
+        explaining = [r["name"] for r in result.parameter_check if r.get("explains")]
+        if rival and explaining:
+            cause["summary"] += (f" A plausible change of {explaining[0]} also removes the "
+                                 f"structure, but fits worse (BIC higher by "
+                                 f"{rival['delta_bic']:.1f}).")
     else:
         cause["summary"] = (f"The residuals follow {cause['driver']}, but no candidate extension "
                             f"improved the cross-validated accuracy significantly: the model "
