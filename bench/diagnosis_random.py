@@ -987,6 +987,10 @@ def summarise(rows: list[dict], null_rows: list[dict]) -> dict:
     big_errors = [e for r in effects for e, m in zip(r["size_errors"], r["multiples"])
                   if e is not None and m >= 3.0]
     gains = [r["gain_ratio"] for r in effects if r["gain_ratio"] is not None]
+    # the accuracy is also split by the weakest effect's size (an effect near its limit is
+    # missed by design in a share of datasets); the goal is over all sizes
+    by_size = {band: [r for r in effects if (min(r["multiples"]) >= 3.0) == big]
+               for band, big in (("weakest >= 3x", True), ("weakest < 3x", False))}
     facades = [r["facade_ok"] for r in effects if r.get("facade_ok") is not None]
     nulls = [r for r in scored if r["family"] == "null"] + null_rows
     by_backend: dict[str, list[float]] = {}
@@ -999,6 +1003,10 @@ def summarise(rows: list[dict], null_rows: list[dict]) -> dict:
         "truth_failed": sum(r["status"] == "truth failed" for r in rows),
         "accuracy": sum(r["cause_ok"] for r in scored) / len(scored) if scored else float("nan"),
         "per_family": per_family, "confusion": confusion,
+        "accuracy_by_size": {band: {"n": len(mine), "verdict_and_cause":
+                                    (sum(r["cause_ok"] for r in mine) / len(mine))
+                                    if mine else float("nan")}
+                             for band, mine in by_size.items()},
         "median_size_error_3x": _median(big_errors), "size_errors_3x": len(big_errors),
         "median_gain_ratio": _median(gains),
         "aperture_facade_right": (sum(facades) / len(facades)) if facades else float("nan"),
@@ -1022,6 +1030,9 @@ def markdown(rows: list[dict], null_rows: list[dict], summary: dict, command: st
              f"- right verdict and cause: {summary['accuracy']:.1%} (goal ≥ 90 %)",
              "- per family: " + ", ".join(f"{f} {v['verdict_and_cause']:.0%} of {v['n']}"
                                            for f, v in summary["per_family"].items()),
+             "- by the weakest effect's size (effects only): " + ", ".join(
+                 f"{band} {v['verdict_and_cause']:.0%} of {v['n']}"
+                 for band, v in summary.get("accuracy_by_size", {}).items()),
              "- confusion (truth → reported cause): " + "; ".join(
                  f"{f}: " + ", ".join(f"{c} {n}" for c, n in d.items())
                  for f, d in summary["confusion"].items()),

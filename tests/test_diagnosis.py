@@ -397,6 +397,26 @@ def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(su
     assert nominal_only.objective > 10 * best.objective
 
 
+def test_a_shape_counts_as_forward_when_allowed_steps_fit_most_of_the_residual():
+    """Two correlated law terms (C·V and D·V²): the free fit may give one a negative sign.
+
+    The residual is mostly a D·V² effect with a small negative V part: the free
+    least-squares fit gives C < 0, yet D alone (non-negative) fits most of it,
+    so the shape is forward. Its negative, which only negative steps fit
+    (heat an extension never adds), is not.
+    """
+    from bpsflow.diagnosis.workflow import _forward
+
+    rng = np.random.default_rng(5)
+    wind = rng.gamma(2.0, 2.0, 500)
+    design = np.column_stack([wind, wind ** 2])
+    residual = 0.3 * wind ** 2 - 0.2 * wind + rng.normal(0, 0.5, wind.size)
+    free = np.linalg.lstsq(design, residual, rcond=None)[0]
+    assert free[0] < 0 < free[1]          # the first coefficient alone would say "backwards"
+    assert _forward(design, residual)
+    assert not _forward(design, -residual)
+
+
 @pytest.mark.slow
 def test_extension_variants_coexist_and_are_nested_at_zero(surrogate_base, tmp_path):
     """Two variants of one extension in one model; at zero the model is the original."""

@@ -572,9 +572,9 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
     are tested against it exactly as against a driver
     (:func:`bpsflow.diagnosis.structure.test_drivers`: Newey–West Wald test,
     fixed-b reference, share, amplitude and stable sign), Holm-adjusted over
-    all variants at ``alpha``; the fitted step must also point into the
-    parameter's allowed range (an extension cannot remove heat it never
-    added). Those that pass go on to the fitted, cross-validated acceptance
+    all variants at ``alpha``; steps into the parameters' allowed range must
+    also fit most of it (:func:`_forward`: an extension cannot remove heat it
+    never added). Those that pass go on to the fitted, cross-validated acceptance
     of :func:`_try_extensions`, which alone can make a verdict.
     """
     from bpsflow.diagnosis.structure import DriverTest, _test_one, holm
@@ -604,7 +604,7 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
         test = _test_one(candidate.cause, y, frame, design[:, 0], folds=settings.folds,
                          hac_lags=None, reference="fixed-b")
         if test is not None:
-            tested.append((position, test, next(iter(test.coefficients.values()), 0.0) > 0))
+            tested.append((position, test, _forward(design, y)))
     adjusted = holm([test.p_value for _, test, _ in tested]) if tested else np.zeros(0)
     min_amplitude = settings.min_amplitude * abs(float(np.mean(d.y[cal])))
     passed: dict[int, tuple[float, int]] = {}      # candidate id -> (p_adjusted, flat index)
@@ -627,6 +627,25 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
         f"{c.cause} (p {passed[id(c)][0]:.2g})" for c in called) if called
         else "no candidate's simulated shape is in the residuals"))
     return called
+
+
+def _forward(design: np.ndarray, residual: np.ndarray) -> bool:
+    """Whether steps into the allowed range (every new parameter up from zero) fit the residual.
+
+    True when non-negative least squares on the shape's columns explains at
+    least half of what unconstrained least squares does (Lawson & Hanson
+    1974): a law whose terms are correlated may fit with one negative
+    coefficient, and still mostly with positive ones.
+    """
+    from scipy.optimize import nnls
+
+    free = np.linalg.lstsq(design, residual, rcond=None)[0]
+    explained_free = float(residual @ residual - np.sum((residual - design @ free) ** 2))
+    if explained_free <= 0:
+        return False
+    allowed = nnls(design, residual)[0]
+    explained_allowed = float(residual @ residual - np.sum((residual - design @ allowed) ** 2))
+    return explained_allowed >= 0.5 * explained_free
 
 
 def _driver_record(test) -> dict:
