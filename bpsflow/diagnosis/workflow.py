@@ -747,7 +747,7 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
 
 
 def _extension_beats_parameter(context: _Context, parameter_model: Model,
-                               passed: list[tuple[dict, Model | None]],
+                               passed: list[tuple[dict, Model]],
                                announce: Announce) -> bool:
     """Whether the best accepted extension's BIC beats the refitted parameter's decisively.
 
