@@ -354,6 +354,10 @@ class _Context:
             min_amplitude=min_amplitude, folds=s.folds)
 
 
+#: Latin-hypercube points screened for the base fit's starts when ``start_screen`` is not set.
+DEFAULT_START_SCREEN = {"energyplus": 16, "surrogate": 0}
+
+
 def starting_points(simulate, base_sample: dict[str, float], fitted: list[Parameter],
                     data: list[Data], screen: int, keep: int, seed: int
                     ) -> list[list[dict[str, float] | None]]:
@@ -388,8 +392,10 @@ def _base_fits(context: _Context, config: Config, fitted: list[Parameter],
     """The base fit of every dataset: a local search from each start, the lowest objective kept."""
     settings = context.settings
     sample = context.sample_of(config)
+    screen = settings.start_screen if settings.start_screen is not None else \
+        DEFAULT_START_SCREEN.get(context.backend, 0)
     starts = starting_points(context.simulator(config, "base_starts"), sample, fitted, data,
-                             settings.start_screen, settings.fit_starts, settings.seed)
+                             screen, settings.fit_starts, settings.seed)
     problems = [Problem(sample, fitted, d.y, d.calibration, start)
                 for d, mine in zip(data, starts) for start in mine]
     fits = context.fit(config, "base", problems)
