@@ -272,7 +272,8 @@ def test_energyplus_diagnosis_with_a_fatal_signature_run_writes_its_record(tmp_p
                       "parameters": ["glazing_dirt_correction"], "parameter_candidates": 1,
                       "suspects": ["exterior_wind_curve_min_speed",
                                    "glazing_visible_transmittance"],
-                      "extensions": [], "max_rounds": 1, "max_fit_iterations": 4}})
+                      "extensions": [], "max_rounds": 1, "max_fit_iterations": 4,
+                      "start_screen": 4, "fit_starts": 1}})
     case = make_case(base, tmp_path / "truth", "office_gain", 400.0,
                      {"glazing_dirt_correction": 0.92}, seed=3, backend="energyplus")
     out = tmp_path / "out"

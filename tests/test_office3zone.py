@@ -126,7 +126,7 @@ def test_every_command_runs_on_the_foreign_building(tmp_path):
                           "posterior_runs": 2}
     # a smoke test of the command: one round, no signature runs of fixed inputs
     raw["diagnosis"] = {"output": "space4_heating_w", "holdout_days": 3, "suspects": [],
-                        "max_rounds": 1}
+                        "max_rounds": 1, "start_screen": 4, "fit_starts": 1}
     path = write(tmp_path, raw, "office.yaml")
     truth = write(tmp_path, {"seed": 5, "values": {"infiltration_flow": 1.4}}, "truth.yaml")
     measured = tmp_path / "run" / "truth" / "measured.csv"
