@@ -208,6 +208,25 @@ def test_two_effects_another_law_and_a_radiant_evening_gain_are_both_found(surro
     assert result.gain["after"] < 0.5 * result.gain["before"]
 
 
+def bench_truths():
+    """The randomised benchmark's truth generator (bench/diagnosis_random.py)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import diagnosis_random
+
+    return diagnosis_random
+
+
+def diagnose_bench_truth(truth, tmp_path: Path):
+    """One benchmark truth, synthesised by the bench and diagnosed on the surrogate."""
+    dr = bench_truths()
+    folder = tmp_path / truth.label
+    base = dr.user_config(truth, folder)
+    frame, built, _ = dr.synthesise(truth, base, folder, tmp_path)
+    result = diagnose(load_config(base), frame, tmp_path / "out", backend="surrogate",
+                      announce=quiet)
+    return built, result
+
+
 @pytest.mark.slow
 def test_a_delayed_effect_that_no_driver_catches_is_found_by_its_simulated_shape(tmp_path):
     """A west aperture under a 17–7 h setback in March: its heat comes back at the reheat.
@@ -219,18 +238,12 @@ def test_a_delayed_effect_that_no_driver_catches_is_found_by_its_simulated_shape
     plain OtherEquipment × west-wall irradiance (bench/diagnosis_random.py),
     computed without the diagnosis code.
     """
-    sys.path.insert(0, str(ROOT / "bench"))
-    import diagnosis_random as dr
-
+    dr = bench_truths()
     truth = dr.Truth(8, "aperture", "test_cell", "surrogate", (3, 12), 26.1, (19.6, 17, 7), 0.5,
                      274682361, [dr.Effect("aperture", 9.054, {"plane_draw": 0.7154780430258117,
                                                                "radiant_fraction": 0.37})])
-    folder = tmp_path / truth.label
-    base = dr.user_config(truth, folder)
-    frame, built, _ = dr.synthesise(truth, base, folder, tmp_path)
+    built, result = diagnose_bench_truth(truth, tmp_path)
     assert built.sizes[0]["plane"] == "wall 270°"
-    result = diagnose(load_config(base), frame, tmp_path / "out", backend="surrogate",
-                      announce=quiet)
     assert result.rounds[0]["significant"] == [] and result.rounds[0]["suggestive"] == []
     assert result.verdict == "model_form"
     accepted = [e for e in result.extensions if e["accepted"]]
@@ -251,19 +264,13 @@ def test_an_aperture_that_an_existing_input_half_absorbs_is_named_when_it_fits_b
     randomised benchmark's own plain OtherEquipment × west-wall irradiance
     (bench/diagnosis_random.py, its truth r055 of seed 1994369808).
     """
-    sys.path.insert(0, str(ROOT / "bench"))
-    import diagnosis_random as dr
-
+    dr = bench_truths()
     truth = dr.Truth(55, "aperture", "test_cell", "surrogate", (1, 14), 24.6, (20.5, 18, 5),
                      0.65, 1540354248,
                      [dr.Effect("aperture", 4.467, {"plane_draw": 0.7289655217445914,
                                                     "radiant_fraction": 0.47})])
-    folder = tmp_path / truth.label
-    base = dr.user_config(truth, folder)
-    frame, built, _ = dr.synthesise(truth, base, folder, tmp_path)
+    built, result = diagnose_bench_truth(truth, tmp_path)
     assert built.sizes[0]["plane"] == "wall 270°"
-    result = diagnose(load_config(base), frame, tmp_path / "out", backend="surrogate",
-                      announce=quiet)
     check = {r["name"]: r for r in result.parameter_check}
     assert check["ground_reflectance"].get("explains"), result.parameter_check
     assert result.verdict == "model_form"
