@@ -120,6 +120,19 @@ def _write_resolved(cfg) -> None:
 RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.")
 BackendOption = typer.Option(None, help="Override model.backend.")
 JobsOption = typer.Option(None, "--jobs", "-j", help="Parallel processes for the simulations.")
+EngineOption = typer.Option(None, "--engine", help="Override execution.engine: local (processes "
+                                                   "on this machine) or dask.")
+SchedulerOption = typer.Option(None, "--scheduler", help="Override execution.scheduler: a Dask "
+                                                         "scheduler address (selects --engine dask).")
+
+
+def _execution(jobs: int | None, engine: str | None = None,
+               scheduler: str | None = None) -> dict[str, tuple[str, object]]:
+    """The ``execution`` keys the simulation commands' options override."""
+    if scheduler is not None and engine is None:
+        engine = "dask"
+    return {"execution.jobs": ("--jobs", jobs), "execution.engine": ("--engine", engine),
+            "execution.scheduler": ("--scheduler", scheduler)}
 NoProgressOption = typer.Option(False, help="No progress bars.")
 AllowImplausibleOption = typer.Option(
     False, "--allow-implausible", help="Accept measured values far outside their plausible "
@@ -280,6 +293,8 @@ def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
 @_friendly
 def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         jobs: int | None = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
+        engine: str | None = EngineOption,
+        scheduler: str | None = SchedulerOption,
         retry_failed: bool = typer.Option(False, help="Run failed instances again."),
         keep_inputs: bool = typer.Option(False, help="Keep instance IDF/EPW/CSV files."),
         backend: str | None = typer.Option(None, help="Override model.backend."),
@@ -296,7 +311,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     from bpsflow.simulation.model_inputs import check_model_inputs
     from bpsflow.simulation.rundir import read_results
 
-    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
+    cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
     check_model_inputs(cfg)  # before config.resolved.yaml or samples are written
@@ -343,13 +358,16 @@ def synth(config: Path = ConfigArg,
           out: Path | None = typer.Option(None, help="Output folder (default RUN_DIR/truth)."),
           run_dir: Path | None = RunDirOption,
           backend: str | None = typer.Option(None, help="Override model.backend."),
+          jobs: int | None = JobsOption,
+          engine: str | None = EngineOption,
+          scheduler: str | None = SchedulerOption,
           detailed: bool = typer.Option(False, "--detailed", help="Also write detailed "
                                         "measurements (detailed.csv, sensor_calibration.csv, "
                                         "detailed.json; seed §3.4.3-3.5).")) -> None:
     """Run a truth instance and write synthetic measurements (measured.csv)."""
     from bpsflow.synth import load_truth, synthesize
 
-    cfg = _load(config, run_dir)
+    cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     if backend is not None:
         cfg.model.backend = backend
     spec = load_truth(truth, cfg)
@@ -439,6 +457,8 @@ def sensitivity(
         trajectories: int | None = typer.Option(None, help="Override design.trajectories."),
         levels: int | None = typer.Option(None, help="Override design.levels (even)."),
         jobs: int | None = typer.Option(None, "--jobs", "-j", help="Parallel processes."),
+        engine: str | None = EngineOption,
+        scheduler: str | None = SchedulerOption,
         backend: str | None = typer.Option(None, help="Override model.backend."),
         groups: bool = typer.Option(False, "--groups", help="Also print mu* summed per "
                                                            "parameter group."),
@@ -457,7 +477,7 @@ def sensitivity(
     from bpsflow.simulation.ensemble import all_failed_message, run_ensemble
     from bpsflow.simulation.rundir import read_results
 
-    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
+    cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     # The Morris design the options ask for passes the schema (and its run cap) like a file's.
     with_overrides(cfg, {"design.method": "morris", "design.trajectories": trajectories,
                          "design.levels": levels},
@@ -612,6 +632,8 @@ def calibrate(config: Path = ConfigArg,
                                                  "RUN_DIR/calibration)."),
               backend: str | None = BackendOption,
               jobs: int | None = JobsOption,
+              engine: str | None = EngineOption,
+              scheduler: str | None = SchedulerOption,
               run_dir: Path | None = RunDirOption,
               no_progress: bool = NoProgressOption) -> None:
     """Calibrate to measured data (Kennedy-O'Hagan or deterministic); test on held-out days."""
@@ -619,7 +641,7 @@ def calibrate(config: Path = ConfigArg,
     from bpsflow.calibration.command import calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
 
-    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
+    cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     settings = apply_overrides(settings_of(cfg),
                                outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
                                resolution=resolution, chains=chains, warmup=warmup,
@@ -646,13 +668,15 @@ def diagnose(config: Path = ConfigArg,
                                                 "RUN_DIR/diagnosis)."),
              backend: str | None = BackendOption,
              jobs: int | None = JobsOption,
+             engine: str | None = EngineOption,
+             scheduler: str | None = SchedulerOption,
              allow_implausible: bool = AllowImplausibleOption,
              run_dir: Path | None = RunDirOption,
              no_progress: bool = NoProgressOption) -> None:
     """What the model gets wrong, why, a fix, and its held-out gain (writes diagnosis.json)."""
     from bpsflow.diagnosis.command import run_diagnose
 
-    cfg = _load(config, run_dir, {"execution.jobs": ("--jobs", jobs)})
+    cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     _lock(cfg)
     run_diagnose(cfg, measured, out.resolve() if out else None, backend=backend, jobs=jobs,
                  show_progress=not no_progress, console=console,

@@ -309,10 +309,67 @@ class Design(_Strict):
     trajectories: int = Field(default=10, ge=2, le=MAX_DESIGN_RUNS // 2)
 
 
+class DaskCluster(_Strict):
+    """The Dask cluster bpsflow starts when ``execution.engine`` is ``dask`` and no
+    ``execution.scheduler`` is given.
+
+    ``kind: local`` starts a ``LocalCluster`` of ``workers`` processes (default
+    ``execution.jobs``, else the CPU count), one thread each. ``slurm`` and
+    ``pbs`` start a dask-jobqueue cluster of ``workers`` batch jobs, each with
+    ``cores``, ``memory``, ``walltime`` and ``queue`` (and any extra scheduler
+    directives in ``job_directives``, e.g. ``--account=bps``).
+    """
+
+    kind: Literal["local", "slurm", "pbs"] = "local"
+    workers: int | None = Field(default=None, ge=1, le=MAX_JOBS)
+    cores: int = Field(default=1, ge=1, le=MAX_JOBS)
+    memory: str | None = None
+    walltime: str | None = None
+    queue: str | None = None
+    job_directives: list[str] = Field(default_factory=list)
+    #: How long to wait for the first batch-job worker to join before giving up (queue waits).
+    start_timeout_s: float = Field(default=600.0, gt=0)
+
+    @model_validator(mode="after")
+    def _batch_needs_memory(self) -> DaskCluster:
+        if self.kind != "local" and not self.memory:
+            raise ValueError(f"execution.cluster.memory: a {self.kind} cluster needs the memory of "
+                             f"one batch job, e.g. '4GB'")
+        return self
+
+
 class Execution(_Strict):
+    """Where and how the simulations run (:mod:`bpsflow.simulation.executor`).
+
+    ``engine: local`` runs them in ``jobs`` processes on this machine;
+    ``dask`` sends them to a Dask scheduler at ``scheduler`` (an address such
+    as ``tcp://10.0.0.5:8786``), or to the cluster ``cluster`` describes.
+    Giving ``scheduler`` alone selects ``dask``. ``shared_filesystem: false``
+    says the workers cannot see this machine's files: the model, weather and
+    boundary files then go to each worker once, every instance runs in the
+    worker's own scratch directory, and its outputs come back through Dask.
+    """
+
     jobs: int | None = Field(default=None, ge=1, le=MAX_JOBS)
     run_dir: Path | None = None
     keep_files: list[str] = Field(default_factory=lambda: ["eplusout.sql", "eplusout.err"])
+    engine: Literal["local", "dask"] = "local"
+    scheduler: str | None = None
+    cluster: DaskCluster = Field(default_factory=DaskCluster)
+    shared_filesystem: bool = True
+    connect_timeout_s: float = Field(default=10.0, gt=0, le=3600)
+
+    @model_validator(mode="after")
+    def _scheduler_means_dask(self) -> Execution:
+        if self.scheduler is not None:
+            if not re.fullmatch(r"(tcp|tls|inproc|ws|wss)://\S+|[\w.\-]+:\d+", self.scheduler):
+                raise ValueError(f"execution.scheduler: expected a Dask scheduler address such as "
+                                 f"'tcp://host:8786', got {self.scheduler!r}")
+            if self.engine == "local" and "engine" in self.model_fields_set:
+                raise ValueError("execution.scheduler is set but execution.engine is 'local'; "
+                                 "use engine 'dask' (or leave engine out)")
+            self.engine = "dask"
+        return self
 
 
 class ValidationSettings(_Strict):

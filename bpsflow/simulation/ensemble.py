@@ -9,8 +9,12 @@ directory on any :class:`~bpsflow.simulation.backend.Backend`:
   its error excerpt and never stops the others;
 - **lock** — one process at a time per run directory;
 - **progress** — a rich bar counting finished instances and failures;
-- **executor** — tasks go to a replaceable executor (default: local processes),
-  a chunk of instances per task for a vectorised backend, one otherwise.
+- **executor** — tasks go to the engine ``execution.engine`` names (local
+  processes or a Dask cluster, :mod:`bpsflow.simulation.executor`), a chunk of
+  instances per task for a vectorised backend, one otherwise. The backend and
+  the config go to each worker once; a worker that cannot see this machine's
+  files gets the input files once (:mod:`bpsflow.simulation.staging`) and
+  sends the outputs back, and this process writes them.
 
 :func:`simulate_samples` is the in-memory form for callers that need outputs
 of a batch now (fits, calibration designs): a vectorised backend simulates the
@@ -42,8 +46,9 @@ from rich.progress import (
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation import rundir
 from bpsflow.simulation.backend import Backend, Batch
-from bpsflow.simulation.executor import Executor, local_executor
+from bpsflow.simulation.executor import Executor, executor_for
 from bpsflow.simulation.rundir import InstanceRecord
+from bpsflow.simulation.staging import StagedInputs, localised_config, stage_inputs
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -72,19 +77,33 @@ def _chunks(labels: list[int], backend: Backend, jobs: int) -> list[list[int]]:
     return [labels[i:i + per_chunk] for i in range(0, len(labels), per_chunk)]
 
 
-def _run_chunk(backend: Backend, config: Config, chunk: pd.DataFrame, run_dir: Path,
-               keep_inputs: bool) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
-    """Simulate one chunk in a worker and write each finished instance's outputs there."""
+def _failed_chunk(chunk: pd.DataFrame, backend_name: str, message: str,
+                  seconds: float = 0.0) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
+    records = [InstanceRecord(instance=int(i), status="failed", seconds=seconds,
+                              error=message, backend=backend_name) for i in chunk.index]
+    return records, {}
+
+
+def _run_chunk(backend: Backend, config: Config, staged: StagedInputs | None,
+               chunk: pd.DataFrame, run_dir: Path, keep_inputs: bool
+               ) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
+    """Simulate one chunk in a worker; write each finished instance's outputs there.
+
+    With ``staged`` inputs (a worker without the shared filesystem) the chunk
+    runs in the worker's scratch run directory and writes nothing of the run
+    directory: the outputs go back to the caller, which writes them.
+    """
     backend_name = backend.name
     started = time.perf_counter()
     try:
+        if staged is not None:
+            config = localised_config(config, staged)
+            run_dir = config.run_dir
         batch = backend.simulate(config, chunk, run_dir, keep_inputs=keep_inputs)
     except Exception as exc:  # a chunk-wide failure is recorded per instance, the run goes on
         seconds = (time.perf_counter() - started) / max(len(chunk), 1)
         message = str(exc) if isinstance(exc, BpsflowError) else f"{type(exc).__name__}: {exc}"
-        records = [InstanceRecord(instance=int(i), status="failed", seconds=seconds,
-                                  error=message, backend=backend_name) for i in chunk.index]
-        return records, {}
+        return _failed_chunk(chunk, backend_name, message, seconds)
     outputs: dict[int, pd.DataFrame] = {}
     by_instance = dict(tuple(batch.tidy.groupby("instance", sort=False))) if len(batch.tidy) \
         else {}
@@ -99,7 +118,8 @@ def _run_chunk(backend: Backend, config: Config, chunk: pd.DataFrame, run_dir: P
         if not np.isfinite(frame["value"].to_numpy(dtype=float)).all():
             record.status, record.error = "failed", "non-finite outputs"
             continue
-        rundir.write_instance_outputs(run_dir, record.instance, frame)
+        if staged is None:
+            rundir.write_instance_outputs(run_dir, record.instance, frame)
         outputs[record.instance] = frame
     return batch.records, outputs
 
@@ -124,7 +144,8 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
     keep_inputs : bool
         Keep each instance's input files (EnergyPlus: IDF, EPW, CSV).
     executor : Executor, optional
-        Where tasks run (default: :class:`~bpsflow.simulation.executor.LocalExecutor`).
+        Where tasks run (default: the engine of ``execution.engine``,
+        :func:`~bpsflow.simulation.executor.executor_for`).
     label : str, optional
         The progress bar's label (default: the backend's name).
     announce : bool
@@ -143,7 +164,7 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
     check_samples = getattr(backend, "check_samples", None)  # optional (see Backend)
     if check_samples is not None:
         check_samples(config, samples)
-    executor = executor or local_executor(jobs or config.execution.jobs)
+    executor = executor or executor_for(config, jobs)
     wanted = [int(i) for i in samples.index]
     with rundir.RunLock(run_dir):
         records = rundir.manifest_records(run_dir)
@@ -169,10 +190,19 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
             with Progress(*columns, console=console,
                           disable=not show_progress or not todo) as progress:
                 task = progress.add_task(label or backend.name, total=len(todo), failed=0)
-                tasks = ((backend, config, samples.loc[chunk], run_dir, keep_inputs)
-                         for chunk in chunks)
+                staged = None if executor.shared_filesystem else stage_inputs(config)
+                tasks = ((samples.loc[chunk], run_dir, keep_inputs) for chunk in chunks)
+
+                def lost(task: tuple, exc: BaseException) -> tuple:
+                    return _failed_chunk(task[0], backend.name, f"the worker running it was "
+                                         f"lost ({type(exc).__name__}: {exc})")
+
                 since_write = 0
-                for chunk_records, outputs in executor.map_unordered(_run_chunk, tasks):
+                for chunk_records, outputs in executor.map_unordered(
+                        _run_chunk, tasks, shared=(backend, config, staged), on_error=lost):
+                    if staged is not None:
+                        for instance, frame in outputs.items():
+                            rundir.write_instance_outputs(run_dir, instance, frame)
                     fresh.update(outputs)
                     for record in chunk_records:
                         records[record.instance] = record
