@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from bpsflow.config import Boundary, Config, period_dates
 from bpsflow.errors import BpsflowError
@@ -107,6 +106,8 @@ def draw_sequences(boundary: Boundary, hours: np.ndarray) -> BoundarySequences:
     ``sigma_s`` (°C) is the surface's ``sensor_std_c`` if set, else the
     boundary's.
     """
+    from scipy.special import ndtri
+
     surfaces = tuple(boundary.surfaces)
     columns = tuple(boundary.surfaces[s].column for s in surfaces)
     measured = read_boundary_file(boundary.file, columns)[list(columns)].to_numpy(dtype=float)[hours]
@@ -116,7 +117,7 @@ def draw_sequences(boundary: Boundary, hours: np.ndarray) -> BoundarySequences:
     values = np.empty((len(surfaces), n, len(hours)), dtype=np.float32)
     for s, surface in enumerate(surfaces):
         u = (rng.permuted(strata, axis=0) + rng.random((n, len(hours)))) / n
-        values[s] = measured[:, s][None, :] + surface_std_c(boundary, surface) * stats.norm.ppf(u)
+        values[s] = measured[:, s][None, :] + surface_std_c(boundary, surface) * ndtri(u)
     return BoundarySequences(surfaces=surfaces, hours=hours, values=values)
 
 

@@ -15,12 +15,24 @@ The ``type`` key selects the distribution in YAML::
 from __future__ import annotations
 
 from pathlib import Path
+import math
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from scipy import stats
 
+
+
+def _stats():
+    """``scipy.stats``, imported on first use: loading a config (in every worker) does not pay
+    for it."""
+    from scipy import stats
+
+    return stats
+
+
+def _standard_normal_cdf(z: float) -> float:
+    return 0.5 * math.erfc(-z / math.sqrt(2.0))
 
 class _Distribution(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -52,7 +64,7 @@ class Uniform(_Distribution):
         return self
 
     def scipy(self):
-        return stats.uniform(loc=self.lower, scale=self.upper - self.lower)
+        return _stats().uniform(loc=self.lower, scale=self.upper - self.lower)
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         return self.lower + np.asarray(u, dtype=float) * (self.upper - self.lower)
@@ -78,7 +90,7 @@ class Normal(_Distribution):
         if not hi > lo:
             raise ValueError(f"upper ({self.upper}) must be greater than lower ({self.lower})")
         a, b = (lo - self.mean) / self.std, (hi - self.mean) / self.std
-        if stats.norm.cdf(b) - stats.norm.cdf(a) < 1e-12:
+        if _standard_normal_cdf(b) - _standard_normal_cdf(a) < 1e-12:
             raise ValueError(
                 f"the bounds [{self.lower}, {self.upper}] hold no probability mass of "
                 f"Normal(mean={self.mean}, std={self.std})"
@@ -89,7 +101,7 @@ class Normal(_Distribution):
         lo = -np.inf if self.lower is None else self.lower
         hi = np.inf if self.upper is None else self.upper
         a, b = (lo - self.mean) / self.std, (hi - self.mean) / self.std
-        return stats.truncnorm(a, b, loc=self.mean, scale=self.std)
+        return _stats().truncnorm(a, b, loc=self.mean, scale=self.std)
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         return self.scipy().ppf(np.asarray(u, dtype=float))
@@ -105,7 +117,7 @@ class Beta(_Distribution):
     shift: float = 0.0
 
     def scipy(self):
-        return stats.beta(self.a, self.b, loc=self.shift, scale=self.scale)
+        return _stats().beta(self.a, self.b, loc=self.shift, scale=self.scale)
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         return self.scipy().ppf(np.asarray(u, dtype=float))
@@ -119,7 +131,7 @@ class LogNormal(_Distribution):
     sigma: float = Field(gt=0)
 
     def scipy(self):
-        return stats.lognorm(s=self.sigma, scale=float(np.exp(self.mu)))
+        return _stats().lognorm(s=self.sigma, scale=float(np.exp(self.mu)))
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         return self.scipy().ppf(np.asarray(u, dtype=float))
@@ -144,7 +156,7 @@ class Triangular(_Distribution):
 
     def scipy(self):
         width = self.upper - self.lower
-        return stats.triang((self.mode - self.lower) / width, loc=self.lower, scale=width)
+        return _stats().triang((self.mode - self.lower) / width, loc=self.lower, scale=width)
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         return self.scipy().ppf(np.asarray(u, dtype=float))
@@ -173,7 +185,7 @@ class Discrete(_Distribution):
         return weights / weights.sum()
 
     def scipy(self):
-        return stats.rv_discrete(values=(np.asarray(self.values), self._probabilities()))
+        return _stats().rv_discrete(values=(np.asarray(self.values), self._probabilities()))
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         order = np.argsort(self.values)
@@ -220,7 +232,7 @@ class Empirical(_Distribution):
 
     def scipy(self):
         support, counts = np.unique(self.values_, return_counts=True)
-        return stats.rv_discrete(values=(support, counts / counts.sum()))
+        return _stats().rv_discrete(values=(support, counts / counts.sum()))
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         values = np.asarray(self.values_, dtype=float)
@@ -243,7 +255,7 @@ class Sampler(_Distribution):
     sequences: int = Field(ge=1)
 
     def scipy(self):
-        return stats.randint(0, self.sequences)
+        return _stats().randint(0, self.sequences)
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         index = np.floor(np.asarray(u, dtype=float) * self.sequences)
@@ -261,7 +273,7 @@ class Constant(_Distribution):
     value: float
 
     def scipy(self):
-        return stats.rv_discrete(values=([self.value], [1.0]))
+        return _stats().rv_discrete(values=([self.value], [1.0]))
 
     def ppf(self, u: np.ndarray) -> np.ndarray:
         return np.full(np.shape(u), self.value, dtype=float)

@@ -6,7 +6,10 @@ A backend turns samples into tidy hourly (or time-step) outputs::
     backend.check_samples(config, samples)         -> None (optional; nothing runs)
     backend.simulate(config, samples, workdir)     -> Batch (tidy rows + one record each)
 
-``check_samples``, when a backend has it, refuses samples it would write as
+``prepare(config)`` and ``install(config, prepared)``, when a backend has them,
+do once in the calling process what every worker would otherwise repeat
+(EnergyPlus: parsing the model); the ensemble loop sends the prepared object
+to each worker with the config. ``check_samples``, when a backend has it, refuses samples it would write as
 field values the model does not accept (both built-in backends: the IDD
 bounds, :mod:`bpsflow.simulation.target_bounds`); the ensemble loop calls it
 before running anything. ``simulate`` never raises for one instance's failure: the instance gets a

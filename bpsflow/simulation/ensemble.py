@@ -84,7 +84,7 @@ def _failed_chunk(chunk: pd.DataFrame, backend_name: str, message: str,
     return records, {}
 
 
-def _run_chunk(backend: Backend, config: Config, staged: StagedInputs | None,
+def _run_chunk(backend: Backend, config: Config, staged: StagedInputs | None, prepared: object,
                chunk: pd.DataFrame, run_dir: Path, keep_inputs: bool
                ) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
     """Simulate one chunk in a worker; write each finished instance's outputs there.
@@ -99,6 +99,8 @@ def _run_chunk(backend: Backend, config: Config, staged: StagedInputs | None,
         if staged is not None:
             config = localised_config(config, staged)
             run_dir = config.run_dir
+        if prepared is not None:
+            backend.install(config, prepared)  # type: ignore[attr-defined]  # optional method
         batch = backend.simulate(config, chunk, run_dir, keep_inputs=keep_inputs)
     except Exception as exc:  # a chunk-wide failure is recorded per instance, the run goes on
         seconds = (time.perf_counter() - started) / max(len(chunk), 1)
@@ -191,6 +193,8 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
                           disable=not show_progress or not todo) as progress:
                 task = progress.add_task(label or backend.name, total=len(todo), failed=0)
                 staged = None if executor.shared_filesystem else stage_inputs(config)
+                prepare = getattr(backend, "prepare", None)  # optional (see Backend)
+                prepared = prepare(config) if prepare is not None and todo else None
                 tasks = ((samples.loc[chunk], run_dir, keep_inputs) for chunk in chunks)
 
                 def lost(task: tuple, exc: BaseException) -> tuple:
@@ -199,7 +203,7 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
 
                 since_write = 0
                 for chunk_records, outputs in executor.map_unordered(
-                        _run_chunk, tasks, shared=(backend, config, staged), on_error=lost):
+                        _run_chunk, tasks, shared=(backend, config, staged, prepared), on_error=lost):
                     if staged is not None:
                         for instance, frame in outputs.items():
                             rundir.write_instance_outputs(run_dir, instance, frame)

@@ -242,27 +242,56 @@ _TEMPLATES: dict[tuple[str, str, str], Template] = {}
 
 
 def _template(config: Config, period_name: str, idd: str, config_key: str) -> Template:
-    """The per-process template of a period (parsed once per worker process).
+    """The per-process template of a period (the model parsed once per process).
 
     ``config_key`` identifies the config (its JSON); computed once per instance.
+    A miss builds every period's template from one parse of the model.
     """
     key = (config_key, period_name, idd)
     if key not in _TEMPLATES:
         if len(_TEMPLATES) > 8:
             _TEMPLATES.clear()
-        _TEMPLATES[key] = build_template(config, config.period(period_name), Path(idd))
+        for name, template in build_templates(config, Path(idd)).items():
+            _TEMPLATES[(config_key, name, idd)] = template
     return _TEMPLATES[key]
+
+
+def template_key(config: Config) -> str:
+    """What a template depends on: the config, and the identity of the model's files."""
+    stamps = []
+    for path in (config.model.idf, *config.model.idf_objects):
+        try:
+            stat = Path(path).stat()
+            stamps.append(f"{stat.st_mtime_ns}:{stat.st_size}")
+        except OSError:
+            stamps.append("missing")
+    return config.model_dump_json() + "|" + ",".join(stamps)
+
+
+def prepared_templates(config: Config, idd: Path) -> dict[str, Template]:
+    """Every period's template of ``config`` (built once in this process, then cached)."""
+    key = template_key(config)
+    return {period.name: _template(config, period.name, str(idd), key)
+            for period in config.model.periods}
+
+
+def install_templates(config: Config, idd: Path, templates: dict[str, Template]) -> None:
+    """Give this process templates built elsewhere, so it does not parse the model again."""
+    key = template_key(config)
+    for name, template in templates.items():
+        _TEMPLATES.setdefault((key, name, str(idd)), template)
 
 
 _SLOT = "@@bpsflow-slot-{}@@"
 _SLOT_PATTERN = re.compile(r"@@bpsflow-slot-(\d+)@@")
 
 
-def build_template(config: Config, period: Period, idd: Path) -> Template:
-    """Parse the model, check the targets and cut the period's text at the instance fields.
+def build_templates(config: Config, idd: Path) -> dict[str, Template]:
+    """Parse the model, check the targets and cut each period's text at the instance fields.
 
-    eppy does the parsing and the writing once; each instance then only joins
-    strings, so writing an instance costs well under a millisecond.
+    eppy does the parsing and the writing once for every period (they differ
+    only in the objects :func:`_period_text` appends); each instance then only
+    joins strings, so writing an instance costs well under a millisecond.
     """
     idf = open_model(config.model, idd)
     targets = resolve_targets(config, idf)
@@ -296,11 +325,16 @@ def build_template(config: Config, period: Period, idd: Path) -> Template:
             filled.add(spec.schedule.upper())
             schedule_slots += 1
     _check_schedule_files(config, filled)
-    text = idf_text(idf) + "\n" + _period_text(config, period, plan)
-    pieces = _SLOT_PATTERN.split(text)
-    return Template(pieces=pieces[0::2], order=[int(n) for n in pieces[1::2]],
-                    slots=[slot for _, slot in ordered], schedule_slots=schedule_slots,
-                    targets=targets, thermostats=plan)
+    pieces = _SLOT_PATTERN.split(idf_text(idf) + "\n")
+    templates = {}
+    for period in config.model.periods:
+        texts = pieces[0::2]
+        texts = [*texts[:-1], texts[-1] + _period_text(config, period, plan)]
+        templates[period.name] = Template(
+            pieces=texts, order=[int(n) for n in pieces[1::2]],
+            slots=[slot for _, slot in ordered], schedule_slots=schedule_slots,
+            targets=targets, thermostats=plan)
+    return templates
 
 
 def idf_text(idf) -> str:
@@ -387,7 +421,7 @@ def write_instance(config: Config, sample: dict[str, float], directory: Path,
         The Energy+.idd matching the model's version.
     """
     directory.mkdir(parents=True, exist_ok=True)
-    config_key = config.model_dump_json()
+    config_key = template_key(config)
     first = _template(config, config.model.periods[0].name, str(idd), config_key)
     weather_errors = {
         quantity: (config.parameter(name).mode, float(sample[name]))
@@ -446,5 +480,8 @@ def _write_period_idf(config: Config, template: Template, sample: dict[str, floa
 
 
 def check_model(config: Config, idd: Path) -> Template:
-    """Parse the model and check every target and thermostat before anything runs."""
-    return build_template(config, config.model.periods[0], idd)
+    """Parse the model and check every target and thermostat before anything runs.
+
+    The templates stay cached in this process (:func:`prepared_templates`).
+    """
+    return prepared_templates(config, idd)[config.model.periods[0].name]
