@@ -14,13 +14,12 @@ The ``type`` key selects the distribution in YAML::
 
 from __future__ import annotations
 
-from pathlib import Path
 import math
+from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-
 
 
 def _stats():
