@@ -175,10 +175,14 @@ def write_boundary_file(boundary: Boundary, sequences: BoundarySequences | None,
     header, base_lines = _boundary_lines(boundary.file, columns)
     lines = list(base_lines)
     if selection:
-        values = table.to_numpy()[sequences.hours].copy()
-        for surface, index in selection.items():
-            values[:, table.columns.get_loc(boundary.surfaces[surface].column)] = \
-                sequences.sequence(surface, index)
-        for k, hour in enumerate(sequences.hours.tolist()):
-            lines[hour] = ",".join(v if isinstance(v, str) else f"{v:.4f}" for v in values[k])
+        hours = sequences.hours.tolist()
+        # each column formatted at once (a list of its texts), then the rows joined
+        texts = []
+        for name in table.columns:
+            surface = next((s for s in selection if boundary.surfaces[s].column == name), None)
+            column = (sequences.sequence(surface, selection[surface]) if surface is not None
+                      else table[name].to_numpy()[hours])
+            texts.append([v if isinstance(v, str) else f"{v:.4f}" for v in column.tolist()])
+        for hour, fields in zip(hours, zip(*texts)):
+            lines[hour] = ",".join(fields)
     return write_text_atomic(path, header + "\n" + "\n".join(lines) + "\n")

@@ -311,16 +311,17 @@ class Design(_Strict):
 
 class DaskCluster(_Strict):
     """The Dask cluster bpsflow starts when ``execution.engine`` is ``dask`` and no
-    ``execution.scheduler`` is given.
+    ``execution.scheduler`` is given (``execution.cluster``).
 
-    ``kind: local`` starts a ``LocalCluster`` of ``workers`` processes (default
-    ``execution.jobs``, else the CPU count), one thread each. ``slurm`` and
-    ``pbs`` start a dask-jobqueue cluster of ``workers`` batch jobs, each with
-    ``cores``, ``memory``, ``walltime`` and ``queue`` (and any extra scheduler
+    ``local`` (the default; also written ``cluster: local``) starts a
+    ``LocalCluster`` of ``workers`` processes (default ``execution.jobs``, else
+    the CPU count), one thread each. ``jobqueue: slurm`` or ``pbs`` starts a
+    dask-jobqueue cluster of ``workers`` batch jobs, each with ``cores``,
+    ``memory``, ``walltime`` and ``queue`` (and any extra scheduler
     directives in ``job_directives``, e.g. ``--account=bps``).
     """
 
-    kind: Literal["local", "slurm", "pbs"] = "local"
+    jobqueue: Literal["slurm", "pbs"] | None = None
     workers: int | None = Field(default=None, ge=1, le=MAX_JOBS)
     cores: int = Field(default=1, ge=1, le=MAX_JOBS)
     memory: str | None = None
@@ -330,11 +331,16 @@ class DaskCluster(_Strict):
     #: How long to wait for the first batch-job worker to join before giving up (queue waits).
     start_timeout_s: float = Field(default=600.0, gt=0)
 
+    @property
+    def kind(self) -> str:
+        """``local``, ``slurm`` or ``pbs``."""
+        return self.jobqueue or "local"
+
     @model_validator(mode="after")
     def _batch_needs_memory(self) -> DaskCluster:
-        if self.kind != "local" and not self.memory:
-            raise ValueError(f"execution.cluster.memory: a {self.kind} cluster needs the memory of "
-                             f"one batch job, e.g. '4GB'")
+        if self.jobqueue is not None and not self.memory:
+            raise ValueError(f"execution.cluster.memory: a {self.jobqueue} cluster needs the "
+                             f"memory of one batch job, e.g. '4GB'")
         return self
 
 
@@ -358,6 +364,16 @@ class Execution(_Strict):
     cluster: DaskCluster = Field(default_factory=DaskCluster)
     shared_filesystem: bool = True
     connect_timeout_s: float = Field(default=10.0, gt=0, le=3600)
+
+    @field_validator("cluster", mode="before")
+    @classmethod
+    def _local_by_name(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            if value != "local":
+                raise ValueError(f"execution.cluster: expected 'local' or a mapping such as "
+                                 f"{{jobqueue: slurm, cores: 4, memory: 8GB}}, got {value!r}")
+            return {}
+        return value
 
     @model_validator(mode="after")
     def _scheduler_means_dask(self) -> Execution:

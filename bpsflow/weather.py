@@ -303,6 +303,24 @@ def _lines(path: Path) -> tuple[str, ...]:
     return tuple(",".join(row) for row in read_epw(path).rows)
 
 
+@lru_cache(maxsize=8)
+def _segments(path: Path, columns: tuple[int, ...]) -> tuple[tuple[str, ...], ...]:
+    """Per data row, the constant text around ``columns`` (sorted): ``len(columns) + 1`` pieces.
+
+    An instance then formats only the changed values and joins them with the
+    pieces: the row is never split and rebuilt field by field.
+    """
+    pieces = []
+    for row in read_epw(path).rows:
+        bounds = (-1, *columns, len(row))
+        # an empty field at either end of the join puts the comma next to a changed value
+        row_pieces = [",".join(([""] if start >= 0 else []) + list(row[start + 1:end])
+                               + ([""] if end < len(row) else []))
+                      for start, end in zip(bounds[:-1], bounds[1:])]
+        pieces.append(tuple(row_pieces))
+    return tuple(pieces)
+
+
 def write_epw(epw: EpwFile, changed: dict[str, np.ndarray], path: Path,
               rows: np.ndarray | None = None) -> Path:
     """Write ``epw`` with ``changed`` columns replaced to ``path``.
@@ -313,11 +331,16 @@ def write_epw(epw: EpwFile, changed: dict[str, np.ndarray], path: Path,
     """
     rows = np.arange(epw.n_hours) if rows is None else np.asarray(rows)
     lines = list(_lines(epw.path))
-    formats = {EPW_COLUMNS[name]: _FORMATS.get(name, "{:.1f}") for name in changed}
-    for i in rows.tolist():
-        row = list(epw.rows[i])
-        for name, values in changed.items():
-            column = EPW_COLUMNS[name]
-            row[column] = formats[column].format(values[i])
-        lines[i] = ",".join(row)
+    if changed:
+        names = sorted(changed, key=lambda name: EPW_COLUMNS[name])
+        segments = _segments(epw.path, tuple(EPW_COLUMNS[name] for name in names))
+        row_list = rows.tolist()
+        formatted = [[_FORMATS.get(name, "{:.1f}").format(v) for v in changed[name][row_list].tolist()]
+                     for name in names]
+        for k, i in enumerate(row_list):
+            pieces = segments[i]
+            parts = [pieces[0]]
+            for column, values in enumerate(formatted):
+                parts += [values[k], pieces[column + 1]]
+            lines[i] = "".join(parts)
     return write_text_atomic(path, "\n".join(epw.header) + "\n" + "\n".join(lines) + "\n")

@@ -187,7 +187,7 @@ def test_the_surrogate_runs_through_a_cluster_bpsflow_starts(tmp_path):
 
 
 def test_a_slurm_cluster_spec_becomes_the_batch_job_script():
-    spec = DaskCluster(kind="slurm", workers=4, cores=8, memory="16GB", walltime="01:30:00",
+    spec = DaskCluster(jobqueue="slurm", workers=4, cores=8, memory="16GB", walltime="01:30:00",
                        queue="compute", job_directives=["--account=bps"])
     cluster = batch_cluster(spec)
     try:
@@ -208,7 +208,7 @@ def test_engine_settings_are_validated_with_the_key_named(tmp_path):
     assert result.exit_code == 2
     assert "execution.scheduler is set but execution.engine is 'local'" in \
         " ".join(result.output.split())
-    raw["execution"] = {"cluster": {"kind": "pbs"}}
+    raw["execution"] = {"cluster": {"jobqueue": "pbs"}}
     path = write_config(tmp_path, raw)
     result = runner.invoke(app, ["check", str(path)])
     assert result.exit_code == 2 and "execution.cluster.memory" in " ".join(result.output.split())

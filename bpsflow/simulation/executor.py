@@ -157,7 +157,7 @@ def batch_cluster(spec: DaskCluster) -> Any:
     """The dask-jobqueue cluster (SLURM or PBS) of ``spec``, before any job is submitted."""
     import dask_jobqueue
 
-    kind = dask_jobqueue.SLURMCluster if spec.kind == "slurm" else dask_jobqueue.PBSCluster
+    kind = dask_jobqueue.SLURMCluster if spec.jobqueue == "slurm" else dask_jobqueue.PBSCluster
     return kind(cores=spec.cores, processes=spec.cores, memory=spec.memory,
                 walltime=spec.walltime, queue=spec.queue,
                 job_extra_directives=list(spec.job_directives))
@@ -165,7 +165,7 @@ def batch_cluster(spec: DaskCluster) -> Any:
 
 def _start_cluster(execution: Execution, jobs: int | None) -> Any:
     spec = execution.cluster
-    if spec.kind == "local":
+    if spec.jobqueue is None:
         from distributed import LocalCluster
 
         workers = spec.workers or jobs or execution.jobs or os.cpu_count() or 1
@@ -213,7 +213,10 @@ def dask_executor(config: Config, jobs: int | None = None) -> DaskExecutor:
             client.close()
             raise BpsflowError(f"execution.scheduler: the Dask scheduler at "
                                f"{execution.scheduler} has no workers", source=config.source)
-        executor = DaskExecutor(client, jobs or threads, execution.shared_filesystem)
+        console.print(f"dask: connected to {execution.scheduler} ({threads} worker thread(s)); "
+                      f"dashboard {client.dashboard_link}", highlight=False)
+        atexit.register(_close, client, None)
+        executor = DaskExecutor(client, threads, execution.shared_filesystem)
     else:
         try:
             cluster = _start_cluster(execution, jobs)
@@ -223,7 +226,7 @@ def dask_executor(config: Config, jobs: int | None = None) -> DaskExecutor:
                                f"cluster ({type(exc).__name__}: {exc})",
                                source=config.source) from None
         spec = execution.cluster
-        if spec.kind != "local":
+        if spec.jobqueue is not None:
             try:
                 client.wait_for_workers(1, timeout=spec.start_timeout_s)
             except (OSError, TimeoutError) as exc:
@@ -234,7 +237,7 @@ def dask_executor(config: Config, jobs: int | None = None) -> DaskExecutor:
                     f"queued or refused? (execution.cluster.start_timeout_s waits longer)",
                     source=config.source) from None
         planned = (spec.workers or jobs or execution.jobs or os.cpu_count() or 1) * \
-            (spec.cores if spec.kind != "local" else 1)
+            (spec.cores if spec.jobqueue is not None else 1)
         console.print(f"dask: started a {spec.kind} cluster ({planned} worker thread(s)); "
                       f"dashboard {client.dashboard_link}", highlight=False)
         atexit.register(_close, client, cluster)
@@ -246,8 +249,9 @@ def dask_executor(config: Config, jobs: int | None = None) -> DaskExecutor:
 def _close(client: Any, cluster: Any) -> None:
     with contextlib.suppress(Exception):
         client.close(timeout=5)
-    with contextlib.suppress(Exception):
-        cluster.close(timeout=5)
+    if cluster is not None:
+        with contextlib.suppress(Exception):
+            cluster.close(timeout=5)
 
 
 def close_dask() -> None:
