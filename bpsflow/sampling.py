@@ -15,8 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from SALib.sample import latin as salib_latin
-from SALib.sample import morris as salib_morris
 
 from bpsflow.config import Config, Parameter
 from bpsflow.errors import BpsflowError
@@ -51,6 +49,8 @@ def latin_hypercube_unit(n_samples: int, n_parameters: int, random_state: int) -
     """A Latin hypercube of ``n_samples`` points in the open unit cube (SALib)."""
     problem = {"num_vars": n_parameters, "names": [f"x{i}" for i in range(n_parameters)],
                "bounds": [[0.0, 1.0]] * n_parameters}
+    from SALib.sample import latin as salib_latin  # on first use: reading samples needs no SALib
+
     unit = salib_latin.sample(problem, n_samples, seed=random_state)
     return np.clip(unit, UNIT_EPS, 1 - UNIT_EPS)
 
@@ -64,6 +64,8 @@ def morris_unit(parameters: list[Parameter], trajectories: int, levels: int,
     unbounded marginals stay finite, while each Morris step is still a whole
     number of levels (seed §3.4.8: a 10-level design).
     """
+    from SALib.sample import morris as salib_morris
+
     unit = salib_morris.sample(_problem(parameters), N=trajectories, num_levels=levels,
                                seed=random_state)
     level = np.rint(unit * (levels - 1))

@@ -6,7 +6,9 @@ A backend turns samples into tidy hourly (or time-step) outputs::
     backend.check_samples(config, samples)         -> None (optional; nothing runs)
     backend.simulate(config, samples, workdir)     -> Batch (tidy rows + one record each)
 
-``prepare(config)`` and ``install(config, prepared)``, when a backend has them,
+``warm(config)``, when a backend has it, loads in a fresh worker what every
+instance reads (EnergyPlus: the weather and boundary files), while the caller
+still checks the model. ``prepare(config)`` and ``install(config, prepared)``, when a backend has them,
 do once in the calling process what every worker would otherwise repeat
 (EnergyPlus: parsing the model); the ensemble loop sends the prepared object
 to each worker with the config. ``check_samples``, when a backend has it, refuses samples it would write as

@@ -77,6 +77,16 @@ def _chunks(labels: list[int], backend: Backend, jobs: int) -> list[list[int]]:
     return [labels[i:i + per_chunk] for i in range(0, len(labels), per_chunk)]
 
 
+def _warm_worker(backend: Backend, config: Config) -> None:
+    """In a fresh worker: let the backend load what every instance reads (``warm``, optional)."""
+    warm = getattr(backend, "warm", None)
+    if warm is not None:
+        try:
+            warm(config)
+        except Exception:  # noqa: S110 - a problem here shows again, reported, in the real task
+            pass
+
+
 def _failed_chunk(chunk: pd.DataFrame, backend_name: str, message: str,
                   seconds: float = 0.0) -> tuple[list[InstanceRecord], dict[int, pd.DataFrame]]:
     records = [InstanceRecord(instance=int(i), status="failed", seconds=seconds,
@@ -162,11 +172,14 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
     if "instance" in samples.columns:
         samples = samples.set_index("instance")
     samples.index = samples.index.astype(int)
+    executor = executor or executor_for(config, jobs)
+    warm = getattr(executor, "warm", None)  # the local pool starts while the model is checked
+    if warm is not None and len(samples) > 1:
+        warm(_warm_worker, backend, config)
     backend.check(config)
     check_samples = getattr(backend, "check_samples", None)  # optional (see Backend)
     if check_samples is not None:
         check_samples(config, samples)
-    executor = executor or executor_for(config, jobs)
     wanted = [int(i) for i in samples.index]
     with rundir.RunLock(run_dir):
         records = rundir.manifest_records(run_dir)

@@ -30,6 +30,7 @@ from bpsflow.simulation.energyplus.instances import (
     Template,
     check_model,
     install_templates,
+    load_inputs,
     prepared_templates,
     write_instance,
 )
@@ -173,6 +174,10 @@ class EnergyPlusBackend:
     def prepare(self, config: Config) -> dict[str, Template]:
         """The model's templates, built here once, for :meth:`install` in each worker."""
         return prepared_templates(config, idd_path(self.binary(config)))
+
+    def warm(self, config: Config) -> None:
+        """Load the weather and boundary files into this (worker) process's caches."""
+        load_inputs(config)
 
     def install(self, config: Config, prepared: dict[str, Template]) -> None:
         """Take the templates :meth:`prepare` built (a worker then parses no model)."""
