@@ -213,3 +213,34 @@ def test_engine_settings_are_validated_with_the_key_named(tmp_path):
     result = runner.invoke(app, ["check", str(path)])
     assert result.exit_code == 2 and "execution.cluster.memory" in " ".join(result.output.split())
     assert executor_for(load_config(write_config(tmp_path, short_raw(samples=2)))).jobs == 2
+
+
+@pytest.mark.energyplus
+@pytest.mark.parametrize("engine", ["local", "dask"])
+def test_ctrl_c_stops_the_run_and_leaves_it_resumable(tmp_path, engine):
+    raw = short_raw(samples=12)
+    path = write_config(tmp_path, raw)
+    bpsflow = str(Path(sys.executable).with_name("bpsflow"))
+    command = [bpsflow, "run", str(path), "--engine", engine, "--jobs", "2", "--no-progress"]
+    # a terminal's Ctrl-C reaches the whole foreground process group: the command and its workers
+    running = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    instances = tmp_path / "run" / "instances"
+    deadline = time.monotonic() + 120
+    while len(list(instances.glob("*/outputs.parquet"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.killpg(running.pid, signal.SIGINT)
+    try:
+        _, stderr = running.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(running.pid, signal.SIGKILL)
+        raise AssertionError("the interrupted run did not stop within 60 s") from None
+    assert running.returncode == 130, stderr
+    assert "interrupted: finished instances are kept" in " ".join(stderr.split())
+    assert "Traceback" not in stderr
+    finished = len(list(instances.glob("*/outputs.parquet")))
+    assert 2 <= finished < 12
+    resumed = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"skipped {finished} finished" in " ".join(resumed.stdout.split())
+    assert (read_manifest(tmp_path / "run")["status"] == "ok").sum() == 12

@@ -247,7 +247,8 @@ def _start_cluster(execution: Execution, jobs: int | None) -> Any:
         # often: idle, it took 6 % of a core at Dask's defaults, half that with these.
         with dask.config.set(LOCAL_CLUSTER_SETTINGS):
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                dashboard_address=":0", silence_logs=logging.ERROR)
+                                dashboard_address=":0", silence_logs=logging.ERROR,
+                                preload=["bpsflow.simulation.dask_worker"])
     cluster = batch_cluster(spec)
     cluster.scale(jobs=spec.workers or 1)
     return cluster
