@@ -85,10 +85,11 @@ def annual_energyplus_seconds(config, work: Path) -> float:
     samples = read_samples(config.run_dir)
     files = write_instance(config, samples.iloc[0].to_dict(), work / "annual", idd_path(binary))
     idf = next(iter(files.idfs.values()))
-    text = idf.read_text()
+    original = idf.read_text()
     text = re.sub(r"RunPeriod,\s*([^,]*),\s*\d+,\s*\d+,\s*(\d+),\s*\d+,\s*\d+,\s*(\d+),",
                   lambda m: f"RunPeriod,\n  {m.group(1)},\n  1,\n  1,\n  {m.group(2)},\n  12,\n"
-                            f"  31,\n  {m.group(2)},", text, count=1)
+                            f"  31,\n  {m.group(2)},", original, count=1)
+    assert text != original, "no RunPeriod to stretch"
     idf.write_text(text)
     outcome = run_energyplus(binary, idf, files.weather, idf.parent)
     assert outcome.ok, outcome.error
@@ -127,7 +128,7 @@ def main() -> None:
     # A few real instances, for the per-instance seconds and sizes.
     config = load_config(ROOT / "configs" / "i600.yaml",
                          {"execution": {"run_dir": str(work / "run"), "jobs": 2},
-                          "design": {"samples": 4}})
+                          "design": {"samples": 12}})
     from bpsflow.sampling import sample, write_design
 
     write_design(sample(config), config.run_dir)
