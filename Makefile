@@ -46,6 +46,7 @@ test-fast: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/run_throughput.py --instances 200 --jobs $(JOBS)
+	$(PY) bench/scaleout.py
 	$(PY) bench/surrogate_bench.py
 	$(PY) -m pip install --quiet scoringrules   # reference CRPS, for the benchmark only
 	$(PY) bench/metrics_bench.py
@@ -55,6 +56,7 @@ bench: $(STAMP)
 	$(PY) bench/diagnosis_bench.py --parts shipped-energyplus --jobs $(JOBS)
 	$(PY) bench/diagnosis_bench.py --random 60 --nulls 40 --parallel $(JOBS)
 	$(PY) bench/diagnosis_bench.py --random 12 --nulls 0 --backends energyplus --jobs $(JOBS)
+	$(PY) bench/study_bench.py --samples $(STUDY_SAMPLES) --jobs $(JOBS)   # about 30 min
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed
