@@ -56,26 +56,26 @@ bench: $(STAMP)
 	$(PY) bench/diagnosis_bench.py --parts shipped-energyplus --jobs $(JOBS)
 	$(PY) bench/diagnosis_bench.py --random 60 --nulls 40 --parallel $(JOBS)
 	$(PY) bench/diagnosis_bench.py --random 12 --nulls 0 --backends energyplus --jobs $(JOBS)
-	$(PY) bench/study_bench.py --samples $(STUDY_SAMPLES) --jobs $(JOBS)   # about 30 min
+	$(PY) bench/study_bench.py --jobs $(JOBS)   # about 30 min
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed
 # synthetic measurements of the truth instance, refined inputs from them (bpsflow refine),
 # the refined ensemble, and validation of both against the truth's measurements.
 # `make study` runs it on the surrogate (seconds); `make study-energyplus` on EnergyPlus.
-STUDY_SAMPLES ?= 2000
+STUDY_CONFIG := configs/i600_study.yaml
 study: $(STAMP)
-	$(MAKE) _study BACKEND=surrogate SUFFIX=_surrogate STUDY_SAMPLES=$(STUDY_SAMPLES)
+	$(MAKE) _study BACKEND=surrogate SUFFIX=_surrogate
 
 study-energyplus: $(STAMP)
-	$(MAKE) _study BACKEND=energyplus SUFFIX=_energyplus STUDY_SAMPLES=$(STUDY_SAMPLES)
+	$(MAKE) _study BACKEND=energyplus SUFFIX=_energyplus
 
 _study:
-	$(BPS) sample configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --samples $(STUDY_SAMPLES) --force
-	$(BPS) synth configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --truth configs/i600_truth.yaml --backend $(BACKEND) --detailed
-	$(BPS) run configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --backend $(BACKEND) --jobs $(JOBS) --no-progress
-	$(BPS) refine configs/i600.yaml --run-dir runs/study$(SUFFIX)/baseline --detailed runs/study$(SUFFIX)/baseline/truth --out runs/study$(SUFFIX)/refine
-	$(BPS) sample runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --samples $(STUDY_SAMPLES) --force
+	$(BPS) sample $(STUDY_CONFIG) --run-dir runs/study$(SUFFIX)/baseline --force
+	$(BPS) synth $(STUDY_CONFIG) --run-dir runs/study$(SUFFIX)/baseline --truth configs/i600_truth.yaml --backend $(BACKEND) --detailed
+	$(BPS) run $(STUDY_CONFIG) --run-dir runs/study$(SUFFIX)/baseline --backend $(BACKEND) --jobs $(JOBS) --no-progress
+	$(BPS) refine $(STUDY_CONFIG) --run-dir runs/study$(SUFFIX)/baseline --detailed runs/study$(SUFFIX)/baseline/truth --out runs/study$(SUFFIX)/refine
+	$(BPS) sample runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --force
 	$(BPS) run runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --backend $(BACKEND) --jobs $(JOBS) --no-progress
 	$(BPS) validate runs/study$(SUFFIX)/refine/refined.yaml --run-dir runs/study$(SUFFIX)/refined --measured runs/study$(SUFFIX)/baseline/truth/measured.csv --invalid runs/study$(SUFFIX)/baseline
 	@echo "refined inputs: runs/study$(SUFFIX)/refine/refine.json; table: runs/study$(SUFFIX)/refined/validation.csv; figures: runs/study$(SUFFIX)/refined/figures/"

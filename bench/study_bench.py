@@ -9,7 +9,9 @@ validation tables side by side to ``bench/study_table.md``: per test, the
 threshold (q = 0.9 quantile of the refined ensemble's nMCRPS / MCRPS), the
 type II risk of the baseline and the reduced risk.
 
-    python bench/study_bench.py [--samples 2000] [--jobs 2] [--backends energyplus surrogate]
+    python bench/study_bench.py [--jobs 2] [--backends energyplus surrogate]
+
+The study's size is ``configs/i600_study.yaml``'s (2000 instances per ensemble).
 """
 
 from __future__ import annotations
@@ -33,29 +35,29 @@ COLUMNS = ["test", "output", "threshold", "type_ii_risk", "reduced_risk"]
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=2000)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--backends", nargs="+", default=["energyplus", "surrogate"],
                         choices=list(TARGETS))
     args = parser.parse_args()
-    command = (f"python bench/study_bench.py --samples {args.samples} --jobs {args.jobs} "
-               f"--backends {' '.join(args.backends)}")
+    from bpsflow.config import load_config
+
+    samples = load_config(ROOT / "configs" / "i600_study.yaml").design.samples
+    command = f"python bench/study_bench.py --jobs {args.jobs} --backends {' '.join(args.backends)}"
     tables = {}
     for backend in args.backends:
         started = time.perf_counter()
-        subprocess.run(["make", TARGETS[backend], f"STUDY_SAMPLES={args.samples}",
-                        f"JOBS={args.jobs}"], cwd=ROOT, check=True)
+        subprocess.run(["make", TARGETS[backend], f"JOBS={args.jobs}"], cwd=ROOT, check=True)
         minutes = (time.perf_counter() - started) / 60
         table = pd.read_csv(ROOT / "runs" / f"study_{backend}" / "refined" / "validation.csv")
         tables[backend] = table
         record(f"i600_study_{backend}_minutes", minutes, "min",
                "<= 30" if backend == "energyplus" else "reported", command,
-               samples=args.samples, jobs=args.jobs,
-               instances=2 * args.samples, test_runs=2 * args.samples * len(table),
+               samples=samples, jobs=args.jobs,
+               instances=2 * samples, test_runs=2 * samples * len(table),
                mean_reduced_risk=round(float(table["reduced_risk"].mean()), 4),
                mean_type_ii_risk=round(float(table["type_ii_risk"].mean()), 4))
     lines = ["# Table 3.5-style validation study: both backends", "",
-             f"`{command}` — {args.samples} baseline + {args.samples} refined instances; "
+             f"`{command}` — {samples} baseline + {samples} refined instances; "
              "threshold = q 0.9 quantile of the refined ensemble's scores against the truth's "
              "measurements (nMCRPS, or MCRPS in °C for temperatures); type II = share of the "
              "baseline ensemble below it; reduced risk = 1 − q + type II.", ""]
