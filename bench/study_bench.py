@@ -7,7 +7,7 @@ would: 2000 baseline instances × 6 tests, the truth's detailed measurements,
 (``i600_study_energyplus_minutes``, goal ≤ 30 on 2 cores) and writes the two
 validation tables side by side to ``bench/study_table.md``: per test, the
 threshold (q = 0.9 quantile of the refined ensemble's nMCRPS / MCRPS), the
-type II risk of the baseline and the reduced risk.
+type II risk of the baseline ensemble and the reduced risk (q − type II).
 
     python bench/study_bench.py [--jobs 2] [--backends energyplus surrogate]
 
@@ -60,7 +60,7 @@ def main() -> None:
              f"`{command}` — {samples} baseline + {samples} refined instances; "
              "threshold = q 0.9 quantile of the refined ensemble's scores against the truth's "
              "measurements (nMCRPS, or MCRPS in °C for temperatures); type II = share of the "
-             "baseline ensemble below it; reduced risk = 1 − q + type II.", ""]
+             "baseline ensemble below it; reduced risk = q − type II (seed §3.6.2).", ""]
     merged = None
     for backend, table in tables.items():
         part = table[COLUMNS].rename(columns={c: f"{c} ({backend})" for c in COLUMNS[2:]})
