@@ -11,8 +11,11 @@ Measured here (one run, this machine):
 - EnergyPlus seconds per instance of the I600 study (two 18-day season runs)
   and of an annual run of the same cell, and the worker's own seconds
   (writing inputs, reading outputs);
-- the client's seconds per result (unpickle, write the instance's
-  ``outputs.parquet``), and the rate of writing ``results.parquet``.
+- the client's seconds per result: deserialising it (with a shared
+  filesystem, the default, the worker has written the instance's
+  ``outputs.parquet``; without one the client writes it too, reported), for
+  an I600 result and an annual one (8760 hours × the config's outputs), and
+  the rate of writing ``results.parquet``.
 
 The model: instances flow through three stages in series, each with its
 own rate: the workers (``W / (EnergyPlus + worker seconds)``), the scheduler
@@ -150,33 +153,48 @@ def main() -> None:
     task_bytes = len(pickle.dumps((samples.loc[[0]], config.run_dir, False)))
     shared_bytes = len(pickle.dumps((backend, config, None, backend.prepare(config))))
     rows_per_instance = len(one)
-    started = time.perf_counter()
-    for _ in range(20):
-        frame = pickle.loads(pickle.dumps(one))
-        rundir.write_instance_outputs(work / "client", 0, frame)
-    client_s = (time.perf_counter() - started) / 20
+
+    def client_seconds(frame: pd.DataFrame, write: bool) -> float:
+        """The client's seconds per result: deserialise it (and write it, without shared files)."""
+        payload = pickle.dumps(([records[0]], {0: frame}))
+        started = time.perf_counter()
+        for _ in range(10):
+            _, outputs = pickle.loads(payload)
+            if write:
+                rundir.write_instance_outputs(work / "client", 0, outputs[0])
+        return (time.perf_counter() - started) / 10
+
+    outputs = len(config.outputs)
+    annual_rows = 8760 * outputs
+    annual = pd.concat([one] * (annual_rows // len(one) + 1), ignore_index=True).iloc[:annual_rows]
+    # the default (shared filesystem): the worker writes outputs.parquet, the client only reads
+    # the result; without one the client writes it too (reported, not projected)
+    client_s = client_seconds(one, write=False)
+    client_staged_s = client_seconds(one, write=True)
+    annual_client_s = client_seconds(annual, write=False)
+    annual_bytes = len(pickle.dumps(([records[0]], {0: annual})))
     big = pd.concat([one.assign(instance=i) for i in range(2000)], ignore_index=True)
     started = time.perf_counter()
     write_parquet(big, work / "collect.parquet")
     parquet_rows_s = len(big) / (time.perf_counter() - started)
     annual_s = annual_energyplus_seconds(config, work)
-    bytes_per_row = result_bytes / rows_per_instance
-    outputs = len(config.outputs)
-    annual_rows = 8760 * outputs
     common = dict(task_ms=overhead_ms, parquet_rows_s=parquet_rows_s, startup_s=5.0)
     studies = {
         "table35": dict(n=4000, energyplus_s=energyplus_s, worker_s=worker_s, client_s=client_s,
                         result_bytes=result_bytes, rows=rows_per_instance),
         "annual100k": dict(n=100_000, energyplus_s=annual_s, worker_s=worker_s,
-                           client_s=client_s * annual_rows / rows_per_instance,
-                           result_bytes=bytes_per_row * annual_rows, rows=annual_rows),
+                           client_s=annual_client_s, result_bytes=annual_bytes,
+                           rows=annual_rows),
     }
     measured = {"energyplus_seconds_per_i600_instance": energyplus_s,
                 "worker_tool_seconds_per_instance": worker_s,
                 "energyplus_seconds_annual_run": annual_s,
                 "task_bytes": task_bytes, "result_bytes_i600": result_bytes,
                 "shared_bytes_once_per_worker": shared_bytes,
-                "client_seconds_per_result": client_s, "parquet_rows_per_second": parquet_rows_s,
+                "client_seconds_per_result": client_s,
+                "client_seconds_per_result_without_shared_files": client_staged_s,
+                "client_seconds_per_annual_result": annual_client_s, "annual_result_bytes": annual_bytes,
+                "parquet_rows_per_second": parquet_rows_s,
                 "bandwidth_assumed_bytes_s": BANDWIDTH_BYTES_S}
     print({k: round(v, 5) for k, v in measured.items()})
 

@@ -9,10 +9,11 @@ it too would only print its own traceback.
 
 from __future__ import annotations
 
-import signal
 from typing import Any
+
+from bpsflow.simulation.executor import leave_interrupt_to_parent
 
 
 def dask_setup(worker: Any) -> None:
     """Called by Dask in each new worker process (also one a nanny restarts)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    leave_interrupt_to_parent()

@@ -24,6 +24,7 @@ directory.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
 import time
@@ -215,20 +216,24 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
                                          f"lost ({type(exc).__name__}: {exc})")
 
                 since_write = 0
-                for chunk_records, outputs in executor.map_unordered(
-                        _run_chunk, tasks, shared=(backend, config, staged, prepared), on_error=lost):
-                    if staged is not None:
-                        for instance, frame in outputs.items():
-                            rundir.write_instance_outputs(run_dir, instance, frame)
-                    fresh.update(outputs)
-                    for record in chunk_records:
-                        records[record.instance] = record
-                        failed += record.status != "ok"
-                    progress.update(task, advance=len(chunk_records), failed=failed)
-                    since_write += len(chunk_records)
-                    if since_write >= 50:
-                        rundir.write_manifest(run_dir, records)
-                        since_write = 0
+                completions = executor.map_unordered(
+                    _run_chunk, tasks, shared=(backend, config, staged, prepared), on_error=lost)
+                # closed at once when this loop is left (Ctrl-C): the executor stops its workers
+                # then, not when the interpreter exits
+                with contextlib.closing(completions):
+                    for chunk_records, outputs in completions:
+                        if staged is not None:
+                            for instance, frame in outputs.items():
+                                rundir.write_instance_outputs(run_dir, instance, frame)
+                        fresh.update(outputs)
+                        for record in chunk_records:
+                            records[record.instance] = record
+                            failed += record.status != "ok"
+                        progress.update(task, advance=len(chunk_records), failed=failed)
+                        since_write += len(chunk_records)
+                        if since_write >= 50:
+                            rundir.write_manifest(run_dir, records)
+                            since_write = 0
         finally:
             rundir.write_manifest(run_dir, records)
             rundir.collect_results(run_dir, wanted, fresh)

@@ -28,7 +28,10 @@ import hashlib
 import logging
 import os
 import pickle
-from collections.abc import Callable, Iterable, Iterator
+import signal
+import tempfile
+from collections.abc import Callable, Generator, Iterable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from rich.console import Console
@@ -53,7 +56,7 @@ class Executor(Protocol):
 
     def map_unordered(self, function: Callable[..., Any], tasks: Iterable[tuple[Any, ...]], *,
                       shared: tuple[Any, ...] = (), on_error: ErrorHandler | None = None
-                      ) -> Iterator[Any]:
+                      ) -> Generator[Any, None, None]:
         """``function(*shared, *task)`` for every task, yielded as each completes."""
         ...
 
@@ -61,12 +64,39 @@ class Executor(Protocol):
 _SHARED: dict[str, tuple[Any, ...]] = {}
 
 
-def _with_shared(function: Callable[..., Any], key: str, shared: bytes, *task: Any) -> Any:
-    """In a local worker: ``function(*shared, *task)``, the shared objects unpickled once per key."""
+def _with_shared(function: Callable[..., Any], key: str, shared: bytes, stop: str,
+                 *task: Any) -> Any:
+    """In a local worker: ``function(*shared, *task)``, the shared objects unpickled once per key.
+
+    Nothing runs once the ``stop`` file exists (the caller left early: a task
+    already queued to a worker must not start).
+    """
+    if os.path.exists(stop):
+        return None
     if key not in _SHARED:
         _SHARED.clear()
         _SHARED[key] = pickle.loads(shared)
     return function(*_SHARED[key], *task)
+
+
+def _end_workers(pool: Any) -> None:
+    """Kill a loky pool's workers (their EnergyPlus runs die with them, PR_SET_PDEATHSIG).
+
+    Loky's own ``shutdown(kill_workers=True)`` races its manager thread when
+    futures are pending (KeyError, InvalidStateError on stderr); killed
+    workers are a case it handles: the pool is marked broken and the next
+    batch gets a new one.
+    """
+    for process in list(getattr(pool, "_processes", {}).values()):
+        with contextlib.suppress(Exception):
+            process.kill()
+
+
+def leave_interrupt_to_parent() -> None:
+    """In a worker: ignore SIGINT. A terminal's Ctrl-C reaches the whole process group; the
+    command handles it (cancels, keeps the run resumable, ends the workers and, through
+    ``PR_SET_PDEATHSIG``, their EnergyPlus runs), a worker would only print a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _warm(parent_pid: int, warm: Callable[..., Any] | None, args: tuple[Any, ...]) -> int:
@@ -98,7 +128,8 @@ class LocalExecutor:
     def _pool(self) -> Any:
         from joblib.externals.loky import get_reusable_executor
 
-        return get_reusable_executor(max_workers=self.jobs, timeout=300)
+        return get_reusable_executor(max_workers=self.jobs, timeout=300,
+                                     initializer=leave_interrupt_to_parent)
 
     def warm(self, function: Callable[..., Any] | None = None, *args: Any) -> None:
         """Start the workers now; each runs ``function(*args)`` (e.g. loading inputs) once."""
@@ -110,7 +141,7 @@ class LocalExecutor:
 
     def map_unordered(self, function: Callable[..., Any], tasks: Iterable[tuple[Any, ...]], *,
                       shared: tuple[Any, ...] = (), on_error: ErrorHandler | None = None
-                      ) -> Iterator[Any]:
+                      ) -> Generator[Any, None, None]:
         from concurrent.futures import as_completed
 
         tasks = list(tasks)
@@ -123,8 +154,10 @@ class LocalExecutor:
         key = hashlib.sha256(payload).hexdigest()
         parent = os.getpid()
         pool = self._pool()
+        stop = Path(tempfile.gettempdir()) / f"bpsflow-stop-{parent}-{key[:16]}"
+        stop.unlink(missing_ok=True)  # from an earlier batch of this process that was left early
         futures = {pool.submit(run_in_worker, parent, _with_shared, function, key, payload,
-                               *task): task for task in tasks}
+                               str(stop), *task): task for task in tasks}
         try:
             for future in as_completed(futures):
                 task = futures.pop(future)
@@ -136,8 +169,12 @@ class LocalExecutor:
                     result = on_error(task, exc)
                 yield result
         finally:
-            for future in futures:  # left early (Ctrl-C, an error): nothing more starts
-                future.cancel()
+            if futures:  # left early (Ctrl-C, an error): the workers end, nothing more runs
+                for future in futures:
+                    future.cancel()
+                with contextlib.suppress(OSError):
+                    stop.touch()  # what loky had queued to a worker returns at once
+                _end_workers(pool)
 
 
 class DaskExecutor:
@@ -170,7 +207,7 @@ class DaskExecutor:
 
     def map_unordered(self, function: Callable[..., Any], tasks: Iterable[tuple[Any, ...]], *,
                       shared: tuple[Any, ...] = (), on_error: ErrorHandler | None = None
-                      ) -> Iterator[Any]:
+                      ) -> Generator[Any, None, None]:
         from distributed import as_completed
 
         tasks = list(tasks)
