@@ -257,8 +257,10 @@ LOCAL_CLUSTER_SETTINGS = {
 }
 
 
-def _cluster_key(execution: Execution, jobs: int | None) -> str:
-    return execution.scheduler or f"{execution.cluster.model_dump_json()}/{jobs}"
+def _cluster_key(execution: Execution) -> str:
+    """One client per scheduler or cluster spec: every batch of a command shares the cluster
+    its first batch started (a later ``jobs`` does not start another)."""
+    return execution.scheduler or execution.cluster.model_dump_json()
 
 
 def batch_cluster(spec: DaskCluster) -> Any:
@@ -304,7 +306,7 @@ def dask_executor(config: Config, jobs: int | None = None) -> DaskExecutor:
         When the scheduler cannot be reached, or the cluster cannot start.
     """
     execution = config.execution
-    key = _cluster_key(execution, jobs)
+    key = _cluster_key(execution)
     if key in _DASK:
         cached = _DASK[key]
         cached.shared_filesystem = execution.shared_filesystem
