@@ -370,20 +370,24 @@ class Execution(_Strict):
     def _local_by_name(cls, value: Any) -> Any:
         if isinstance(value, str):
             if value != "local":
-                raise ValueError(f"execution.cluster: expected 'local' or a mapping such as "
+                raise ValueError(f"expected 'local' or a mapping such as "
                                  f"{{jobqueue: slurm, cores: 4, memory: 8GB}}, got {value!r}")
             return {}
         return value
 
     @model_validator(mode="after")
     def _scheduler_means_dask(self) -> Execution:
-        if self.scheduler is not None:
-            if not re.fullmatch(r"(tcp|tls|inproc|ws|wss)://\S+|[\w.\-]+:\d+", self.scheduler):
-                raise ValueError(f"execution.scheduler: expected a Dask scheduler address such as "
-                                 f"'tcp://host:8786', got {self.scheduler!r}")
+        if self.scheduler is not None and not re.fullmatch(
+                r"(tcp|tls|inproc|ws|wss)://\S+|[\w.\-]+:\d+", self.scheduler):
+            raise ValueError(f"execution.scheduler: expected a Dask scheduler address such as "
+                             f"'tcp://host:8786', got {self.scheduler!r}")
+        # a scheduler or a cluster spec asks for Dask; never ignored in silence
+        asked = "scheduler" if self.scheduler is not None else \
+            "cluster" if self.cluster != DaskCluster() else None
+        if asked is not None:
             if self.engine == "local" and "engine" in self.model_fields_set:
-                raise ValueError("execution.scheduler is set but execution.engine is 'local'; "
-                                 "use engine 'dask' (or leave engine out)")
+                raise ValueError(f"execution.{asked} is set but execution.engine is 'local'; "
+                                 f"use engine 'dask' (or leave engine out)")
             self.engine = "dask"
         return self
 

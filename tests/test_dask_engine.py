@@ -88,7 +88,9 @@ def test_dask_cluster_gives_the_local_engines_results_and_stages_inputs_without_
     assert (summary.ok, summary.failed) == (4, 0)
     pd.testing.assert_frame_equal(_sorted(read_results(staged.run_dir)), expected)
     assert not list((staged.run_dir / "instances").rglob("eplusout.err"))
-    assert list((tmp_path / "worker-scratch").rglob("eplusout.err"))
+    scratch = tmp_path / "worker-scratch"
+    assert list(scratch.rglob("inputs/weather/*.epw"))  # the staged copy the workers ran from
+    assert not list(scratch.rglob("eplusout.err"))  # finished instances leave nothing behind
     assert (staged.run_dir / "instances" / "000003" / "outputs.parquet").is_file()
 
 
@@ -212,6 +214,15 @@ def test_engine_settings_are_validated_with_the_key_named(tmp_path):
     path = write_config(tmp_path, raw)
     result = runner.invoke(app, ["check", str(path)])
     assert result.exit_code == 2 and "execution.cluster.memory" in " ".join(result.output.split())
+    # a cluster spec asks for Dask: with an explicit local engine it is refused, not ignored
+    raw["execution"] = {"engine": "local", "cluster": {"jobqueue": "pbs", "memory": "4GB"}}
+    path = write_config(tmp_path, raw)
+    result = runner.invoke(app, ["check", str(path)])
+    assert result.exit_code == 2
+    assert "execution.cluster is set but execution.engine is 'local'" in \
+        " ".join(result.output.split())
+    raw["execution"] = {"cluster": {"workers": 2}}
+    assert load_config(write_config(tmp_path, raw)).execution.engine == "dask"
     assert executor_for(load_config(write_config(tmp_path, short_raw(samples=2)))).jobs == 2
 
 

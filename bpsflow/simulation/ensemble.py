@@ -133,6 +133,8 @@ def _run_chunk(backend: Backend, config: Config, staged: StagedInputs | None, pr
             continue
         if staged is None:
             rundir.write_instance_outputs(run_dir, record.instance, frame)
+        else:  # the worker's copy of a finished instance is of no use to anyone: it goes
+            shutil.rmtree(rundir.instance_dir(run_dir, record.instance), ignore_errors=True)
         outputs[record.instance] = frame
     return batch.records, outputs
 

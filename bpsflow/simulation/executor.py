@@ -79,6 +79,19 @@ def _with_shared(function: Callable[..., Any], key: str, shared: bytes, stop: st
     return function(*_SHARED[key], *task)
 
 
+def _remove_stale_stops(stop: Path) -> None:
+    """Remove ``stop`` (an earlier batch of this process left early) and the stop marks of
+    processes that have ended (a mark lives until its process exits)."""
+    stop.unlink(missing_ok=True)
+    for mark in stop.parent.glob("bpsflow-stop-*-*"):
+        try:
+            os.kill(int(mark.name.split("-")[2]), 0)
+        except ProcessLookupError:
+            mark.unlink(missing_ok=True)
+        except (ValueError, OSError):
+            continue
+
+
 def _end_workers(pool: Any) -> None:
     """Kill a loky pool's workers (their EnergyPlus runs die with them, PR_SET_PDEATHSIG).
 
@@ -155,7 +168,7 @@ class LocalExecutor:
         parent = os.getpid()
         pool = self._pool()
         stop = Path(tempfile.gettempdir()) / f"bpsflow-stop-{parent}-{key[:16]}"
-        stop.unlink(missing_ok=True)  # from an earlier batch of this process that was left early
+        _remove_stale_stops(stop)
         futures = {pool.submit(run_in_worker, parent, _with_shared, function, key, payload,
                                str(stop), *task): task for task in tasks}
         try:

@@ -76,7 +76,10 @@ def localised_config(config: Config, staged: StagedInputs) -> Config:
     copy.model.idf = local["idf"]
     copy.model.weather = local["weather"]
     copy.model.idf_objects = [local[f"idf_objects/{k}"] for k in range(len(config.model.idf_objects))]
-    run_dir = root / "run"
+    # one scratch run directory per run directory of the caller: two runs of the same model
+    # (other seeds, other run directories) never share instance folders
+    caller = hashlib.sha256(str(config.run_dir.resolve()).encode()).hexdigest()[:12]
+    run_dir = root / f"run-{caller}"
     run_dir.mkdir(parents=True, exist_ok=True)
     if copy.model.boundary is not None:
         copy.model.boundary.file = local["boundary"]
