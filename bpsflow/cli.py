@@ -133,7 +133,7 @@ def _execution(jobs: int | None, engine: str | None = None,
         engine = "dask"
     return {"execution.jobs": ("--jobs", jobs), "execution.engine": ("--engine", engine),
             "execution.scheduler": ("--scheduler", scheduler)}
-NoProgressOption = typer.Option(False, help="No progress bars.")
+NoProgressOption = typer.Option(False, "--no-progress", help="No progress bars.")
 AllowImplausibleOption = typer.Option(
     False, "--allow-implausible", help="Accept measured values far outside their plausible "
                                        "range (a note instead of an error).")
@@ -300,7 +300,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         backend: str | None = typer.Option(None, help="Override model.backend."),
         measured: Path | None = typer.Option(None, help="Measured data to draw in the figures."),
         allow_implausible: bool = AllowImplausibleOption,
-        no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
+        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar.")) -> None:
     """Run every instance (sampling first if needed); resume skips finished instances."""
     from bpsflow.design_record import require_same_design
     from bpsflow.measured import plausibility_reference
@@ -468,7 +468,7 @@ def sensitivity(
                                                   "<config stem>_screened.yaml beside CONFIG)."),
         allow_implausible: bool = AllowImplausibleOption,
         run_dir: Path | None = RunDirOption,
-        no_progress: bool = typer.Option(False, help="No progress bar.")) -> None:
+        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
     from bpsflow.config import with_overrides
