@@ -125,6 +125,11 @@ EngineOption = typer.Option(None, "--engine", help="Override execution.engine: l
 SchedulerOption = typer.Option(None, "--scheduler", help="Override execution.scheduler: a Dask "
                                                          "scheduler address (selects --engine dask).")
 
+NoProgressOption = typer.Option(False, "--no-progress", help="No progress bars.")
+AllowImplausibleOption = typer.Option(
+    False, "--allow-implausible", help="Accept measured values far outside their plausible "
+                                       "range (a note instead of an error).")
+
 
 def _execution(jobs: int | None, engine: str | None = None,
                scheduler: str | None = None) -> dict[str, tuple[str, object]]:
@@ -133,10 +138,6 @@ def _execution(jobs: int | None, engine: str | None = None,
         engine = "dask"
     return {"execution.jobs": ("--jobs", jobs), "execution.engine": ("--engine", engine),
             "execution.scheduler": ("--scheduler", scheduler)}
-NoProgressOption = typer.Option(False, "--no-progress", help="No progress bars.")
-AllowImplausibleOption = typer.Option(
-    False, "--allow-implausible", help="Accept measured values far outside their plausible "
-                                       "range (a note instead of an error).")
 
 
 def _read_measured(path: Path, cfg, *, required=None, reference=None,

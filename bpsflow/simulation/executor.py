@@ -79,6 +79,22 @@ def _with_shared(function: Callable[..., Any], key: str, shared: bytes, stop: st
     return function(*_SHARED[key], *task)
 
 
+def _outcomes(completed: Iterable[Any], futures: dict[Any, tuple[Any, ...]],
+              on_error: ErrorHandler | None) -> Generator[Any, None, None]:
+    """Each completed future's result, or ``on_error(task, exception)`` for one that failed (a
+    worker that died: loky's TerminatedWorkerError, Dask's KilledWorker); the future leaves
+    ``futures`` as it completes, so what is left there never ran to the end."""
+    for future in completed:
+        task = futures.pop(future)
+        try:
+            result = future.result()
+        except Exception as exc:
+            if on_error is None:
+                raise
+            result = on_error(task, exc)
+        yield result
+
+
 def _remove_stale_stops(stop: Path) -> None:
     """Remove ``stop`` (an earlier batch of this process left early) and the stop marks of
     processes that have ended (a mark lives until its process exits)."""
@@ -172,15 +188,7 @@ class LocalExecutor:
         futures = {pool.submit(run_in_worker, parent, _with_shared, function, key, payload,
                                str(stop), *task): task for task in tasks}
         try:
-            for future in as_completed(futures):
-                task = futures.pop(future)
-                try:
-                    result = future.result()
-                except Exception as exc:  # a worker that died (TerminatedWorkerError)
-                    if on_error is None:
-                        raise
-                    result = on_error(task, exc)
-                yield result
+            yield from _outcomes(as_completed(futures), futures, on_error)
         finally:
             if futures:  # left early (Ctrl-C, an error): the workers end, nothing more runs
                 for future in futures:
@@ -232,17 +240,8 @@ class DaskExecutor:
         futures = {self.client.submit(function, *shared_futures, *task, pure=False): task
                    for task in tasks}
         try:
-            for future in as_completed(list(futures), loop=self.client.loop):
-                task = futures.pop(future)
-                if future.status == "finished":
-                    yield future.result()
-                    continue
-                try:
-                    future.result()
-                except Exception as exc:  # KilledWorker, or an error raised on the worker
-                    if on_error is None:
-                        raise
-                    yield on_error(task, exc)
+            yield from _outcomes(as_completed(list(futures), loop=self.client.loop), futures,
+                                 on_error)
         finally:
             if futures:  # left early (Ctrl-C, an error): nothing more runs for this call
                 with contextlib.suppress(Exception):
@@ -276,6 +275,11 @@ def _cluster_key(execution: Execution) -> str:
     return execution.scheduler or execution.cluster.model_dump_json()
 
 
+def _planned_workers(execution: Execution, jobs: int | None) -> int:
+    """Workers (local processes or batch jobs) of a cluster bpsflow starts."""
+    return execution.cluster.workers or jobs or execution.jobs or os.cpu_count() or 1
+
+
 def batch_cluster(spec: DaskCluster) -> Any:
     """The dask-jobqueue cluster (SLURM or PBS) of ``spec``, before any job is submitted."""
     import dask_jobqueue
@@ -292,7 +296,7 @@ def _start_cluster(execution: Execution, jobs: int | None) -> Any:
         import dask
         from distributed import LocalCluster
 
-        workers = spec.workers or jobs or execution.jobs or os.cpu_count() or 1
+        workers = _planned_workers(execution, jobs)
         # One single-threaded process per worker: an EnergyPlus run or a surrogate chunk
         # fills one core, and a process keeps the workers' Python work apart. The cluster
         # shares this machine's cores with the simulations, so its housekeeping runs less
@@ -364,7 +368,7 @@ def dask_executor(config: Config, jobs: int | None = None) -> DaskExecutor:
                     f"{spec.start_timeout_s:g} s ({type(exc).__name__}); are the batch jobs "
                     f"queued or refused? (execution.cluster.start_timeout_s waits longer)",
                     source=config.source) from None
-        planned = (spec.workers or jobs or execution.jobs or os.cpu_count() or 1) * \
+        planned = _planned_workers(execution, jobs) * \
             (spec.cores if spec.jobqueue is not None else 1)
         console.print(f"dask: started a {spec.kind} cluster ({planned} worker thread(s)); "
                       f"dashboard {client.dashboard_link}", highlight=False)

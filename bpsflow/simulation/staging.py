@@ -59,8 +59,24 @@ def scratch_root() -> Path:
     return Path(os.environ.get("BPSFLOW_SCRATCH") or tempfile.gettempdir()) / "bpsflow-worker"
 
 
+_LOCALISED: dict[tuple[str, str], Config] = {}
+
+
 def localised_config(config: Config, staged: StagedInputs) -> Config:
-    """``config`` pointing at the staged copies on this (worker) machine, written once."""
+    """``config`` pointing at the staged copies on this (worker) machine, written once.
+
+    Built once per worker process, staged content and config: every task of a
+    batch calls this.
+    """
+    key = (staged.key, config.model_dump_json())
+    if key not in _LOCALISED or not _LOCALISED[key].run_dir.is_dir():  # scratch cleared since
+        if len(_LOCALISED) > 8:
+            _LOCALISED.clear()
+        _LOCALISED[key] = _localise(config, staged)
+    return _LOCALISED[key]
+
+
+def _localise(config: Config, staged: StagedInputs) -> Config:
     from bpsflow.files import write_bytes_atomic
 
     root = scratch_root() / staged.key

@@ -94,8 +94,10 @@ def _load_parsed_idd(idd: Path) -> None:
     IDF.setidd(idd_info, idd_index, block, idd_version)
 
 
+@lru_cache(maxsize=4)
 def _keep_parsed_idd(idd: Path) -> None:
-    """Keep eppy's parse of ``idd`` for later processes (written once, atomically)."""
+    """Keep eppy's parse of ``idd`` for later processes (checked once per process, written
+    once, atomically); called after a parse, when eppy holds the IDD."""
     import pickle
 
     from eppy.modeleditor import IDF
@@ -513,10 +515,8 @@ def load_inputs(config: Config) -> None:
     first instance starts from cached inputs like the others.
     """
     from bpsflow.boundary import read_boundary_file
-    from bpsflow.weather import _lines
 
-    epw = read_epw(config.model.weather)
-    _lines(epw.path)
+    read_epw(config.model.weather)
     boundary = config.model.boundary
     if boundary is not None:
         read_boundary_file(boundary.file, tuple(boundary.surfaces[s].column
