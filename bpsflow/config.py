@@ -82,7 +82,8 @@ class _Strict(BaseModel):
 
 
 class IdfTarget(_Strict):
-    """An IDF field: object type, object name (``*`` for every object of the type), field."""
+    """An IDF field: object type, object name (``*`` for every object of the type, or a
+    shell-style pattern such as ``Office*``), field (IDD name)."""
 
     object: str
     name: str = "*"
@@ -162,6 +163,12 @@ class Period(_Strict):
 class Test(_Strict):
     """One test: a window of days inside a period with one control mode.
 
+    ``mode`` is ``heating`` or ``cooling`` (the tool's setpoint replaces the
+    model's thermostat schedules), ``free_floating`` (every thermostat off) or
+    ``model`` (the model's own thermostats, schedules and plant run as they are:
+    an occupied building whose controls are part of the model). ``model`` tests
+    cannot share a config with the other modes, since the tool either rewires
+    the thermostats for a whole run or leaves them alone.
     ``setpoint_c`` is the thermostat setpoint in °C; ``setback_c`` (optional)
     the setpoint between ``setback_start_hour`` and ``setback_end_hour`` (next
     day). The first ``warmup_days`` are simulated but not evaluated.
@@ -173,7 +180,7 @@ class Test(_Strict):
     # A test lies within one simulated year (plus its warm-up).
     days: int = Field(default=6, ge=1, le=366)
     warmup_days: int = Field(default=3, ge=0, le=365)
-    mode: Literal["heating", "cooling", "free_floating"]
+    mode: Literal["heating", "cooling", "free_floating", "model"]
     # A thermostat setpoint outside [-50, 100] °C is a unit or typing mistake.
     setpoint_c: float | None = Field(default=None, ge=-50.0, le=100.0)
     setback_c: float | None = Field(default=None, ge=-50.0, le=100.0)
@@ -189,7 +196,10 @@ class Test(_Strict):
 
     @model_validator(mode="after")
     def _check(self) -> Test:
-        if self.mode != "free_floating" and self.setpoint_c is None:
+        if self.mode == "model" and (self.setpoint_c is not None or self.setback_c is not None):
+            raise ValueError("a model test runs the model's own thermostats: it takes no "
+                             "setpoint_c or setback_c")
+        if self.mode in ("heating", "cooling") and self.setpoint_c is None:
             raise ValueError(f"a {self.mode} test needs setpoint_c (°C)")
         if self.warmup_days >= self.days:
             raise ValueError(f"warmup_days ({self.warmup_days}) must be fewer than days ({self.days})")
@@ -445,6 +455,13 @@ class Config(_Strict):
                 if output not in self.outputs:
                     raise ValueError(f"model.tests[{i}] ({test.name}).outputs: unknown output "
                                      f"'{output}', expected one of {sorted(self.outputs)}")
+        own = [t.name for t in self.model.tests if t.mode == "model"]
+        if own and len(own) != len(self.model.tests):
+            tool = [t.name for t in self.model.tests if t.mode != "model"]
+            raise ValueError(
+                f"model.tests: {', '.join(own)} use mode model (the model's own thermostats) "
+                f"but {', '.join(tool)} set the tool's setpoints; one config does one or the "
+                f"other (split them into two configs)")
         if self.design.method == "morris":
             stepped = sum(not isinstance(p.distribution, Constant) for p in self.parameters)
             runs = self.design.trajectories * (stepped + 1)

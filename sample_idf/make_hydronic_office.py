@@ -259,6 +259,9 @@ def room_objects(room: Room, surfaces: list[Surface], window_names: list[str]) -
                        OPENING_FRACTION * glazing * room.usage, "Window Opening Hours", "autocalculate", azimuth,
                        1.0, "autocalculate", 23.0, "", 100, "", -100, "", -100, "", 100, "", 40))
     if kind != "Stair Corridor":
+        # Air exchanged with the corridor through door gaps (Table A.7's inter-room rate).
+        out.append(obj("ZoneCrossMixing", f"{name} Corridor Air Exchange", name, "Always On",
+                       "Flow/Zone", 0.0015, "", "", "", "Stair Corridor", 0))
         out.append(obj("ZoneCapacitanceMultiplier:ResearchSpecial", f"{name} Air Capacity", name,
                        1.0, 1.0, 1.0, 1.0))
     setpoint = f"{kind} Heating Setpoint"
@@ -306,7 +309,8 @@ def _area(vertices: list[tuple[float, float, float]]) -> float:
 WINDOW_AREAS: dict[str, float] = {}
 
 
-def envelope(rooms: list[Room], individual_offices: bool) -> tuple[dict[str, list[Surface]], list[str], dict[str, list[str]]]:
+def envelope(rooms: list[Room], individual_offices: bool
+             ) -> tuple[dict[str, list[Surface]], list[str], dict[str, list[str]]]:
     """Surfaces and windows of every room; interzone partitions matched pairwise."""
     surfaces: dict[str, list[Surface]] = {r.name: [] for r in rooms}
     windows: list[str] = []

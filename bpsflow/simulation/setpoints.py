@@ -47,9 +47,11 @@ def day_setpoints(test: Test | None) -> tuple[list[tuple[int, float]], list[tupl
     """(heating, cooling) setpoint profiles of one day as ``[(until_hour, °C), ...]``.
 
     Days outside every test, and free-floating tests, get setpoints that keep
-    the equipment idle (:data:`HEATING_OFF_C`, :data:`COOLING_OFF_C`).
+    the equipment idle (:data:`HEATING_OFF_C`, :data:`COOLING_OFF_C`); so do
+    ``model`` tests, whose setpoints are the model's own and unknown to the tool
+    (no thermostat is rewired to these profiles then).
     """
-    if test is None or test.mode == "free_floating":
+    if test is None or test.mode in ("free_floating", "model"):
         return [(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)]
     setpoint = float(test.setpoint_c)  # type: ignore[arg-type]
     if test.setback_c is None:
@@ -178,7 +180,9 @@ def thermostat_plan(config: Config, idf: IdfModel) -> ThermostatPlan:
         ExpandObjects first), or a controlled zone has no equipment that could
         heat or cool it.
     """
-    controlled = any(t.mode != "free_floating" for t in config.model.tests)
+    if all(t.mode == "model" for t in config.model.tests):
+        return ThermostatPlan()
+    controlled = any(t.mode in ("heating", "cooling") for t in config.model.tests)
     wanted = config.model.thermostat_zones
     zones_upper = {z.upper(): z for z in zone_names(idf)}
     if wanted is not None:
@@ -208,7 +212,7 @@ def thermostat_plan(config: Config, idf: IdfModel) -> ThermostatPlan:
             f"expands with ExpandObjects before a run; run ExpandObjects on the model and use "
             f"its expanded.idf, so the tests' setpoints reach real ZoneControl:Thermostat "
             f"objects", source=config.model.idf)
-    tests = ", ".join(t.name for t in config.model.tests if t.mode != "free_floating")
+    tests = ", ".join(t.name for t in config.model.tests if t.mode in ("heating", "cooling"))
     if not plan.thermostats:
         which = (f" for the zones of model.thermostat_zones ({', '.join(wanted)})"
                  if wanted is not None else "")

@@ -1,6 +1,7 @@
 """How a parameter's value reaches its targets: shared by both backends.
 
-A parameter targets IDF fields (object type, object name or ``*``, field
+A parameter targets IDF fields (object type, object name, ``*`` or a
+shell-style pattern such as ``Office*``, field
 name as in the IDD, compared without case, spaces or punctuation), weather
 quantities or boundary samplers (see :mod:`bpsflow.config`). Its ``mode``
 says how a sampled value combines with the model's nominal value.
@@ -8,6 +9,7 @@ says how a sampled value combines with the model's nominal value.
 
 from __future__ import annotations
 
+import fnmatch
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, TypeVar
 
@@ -31,8 +33,18 @@ def apply_mode(mode: str, nominal: float, value: float) -> float:
 
 
 def matches_name(pattern: str, name: str) -> bool:
-    """Whether a target's object name (``*`` for every object) selects ``name`` (no case)."""
-    return pattern == "*" or pattern.strip().upper() == name.strip().upper()
+    """Whether a target's object name selects ``name`` (no case).
+
+    ``*`` selects every object; a name with ``*`` or ``?`` is a shell-style
+    pattern (``Cellular Office*`` selects ``Cellular Office`` and
+    ``Cellular Office 07``); any other name selects that object alone.
+    """
+    if pattern == "*":
+        return True
+    wanted, name = pattern.strip().upper(), name.strip().upper()
+    if "*" in wanted or "?" in wanted:
+        return fnmatch.fnmatchcase(name, wanted.replace("[", "[[]"))
+    return wanted == name
 
 
 def select_objects(objects: Sequence[T], pattern: str,

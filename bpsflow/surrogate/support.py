@@ -71,6 +71,10 @@ def unsupported_features(config: Config) -> list[str]:
         lacking.append("no physics for " + ", ".join(
             f"{kind} ({n})" for kind, n in sorted(types.items())))
     lacking += _output_features(config)
+    own = [t.name for t in config.model.tests if t.mode == "model"]
+    if own:
+        lacking.append(f"tests {', '.join(own)} run the model's own controls (mode model); "
+                       f"it runs the tests' setpoints only")
     if not lacking:
         # The structure is one it knows: building it finds what the scan cannot see
         # (a construction layer it does not read, a missing convection curve, ...).
