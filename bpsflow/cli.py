@@ -684,6 +684,30 @@ def diagnose(config: Path = ConfigArg,
                  allow_implausible=allow_implausible)
 
 
+@app.command()
+@_friendly
+def decide(config: Path = ConfigArg,
+           calibration: Path = typer.Option(..., help="A calibration folder (RUN_DIR/calibration)."),
+           intervention: Path = typer.Option(..., help="The intervention file (YAML): change, "
+                                             "test week, outcomes, decision rules."),
+           scenarios: bool = typer.Option(False, "--scenarios", help="Decide with every "
+                                          "scenario's calibration and correlate accuracy with risk."),
+           measured: Path | None = typer.Option(None, help="Measured data (default: the file the "
+                                                "calibration used)."),
+           jobs: int | None = JobsOption,
+           engine: str | None = EngineOption,
+           scheduler: str | None = SchedulerOption,
+           run_dir: Path | None = RunDirOption,
+           no_progress: bool = NoProgressOption) -> None:
+    """Underperformance probability and decision risk of an intervention (seed §4.4.2, eq. 23)."""
+    from bpsflow.decision.workflow import decide as run_decide
+
+    cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
+    _lock(cfg)
+    run_decide(cfg, calibration.resolve(), intervention, scenarios=scenarios,
+               measured_path=measured, jobs=jobs, show_progress=not no_progress, console=console)
+
+
 def main() -> None:  # pragma: no cover
     app(prog_name="bpsflow")
 

@@ -823,6 +823,25 @@ def with_overrides(config: Config, overrides: Mapping[str, Any],
     return updated
 
 
+def with_overlay(config: Config, overlay: Mapping[str, Any], source: Path,
+                 where: str = "overlay") -> Config:
+    """A copy of ``config`` with ``overlay`` merged over it as an ``extends:`` child would be.
+
+    Paths in the overlay are relative to ``source`` (the file that holds it);
+    a schema problem is named as ``<where>.<key path>`` in ``source``.
+    """
+    raw = config.model_dump(mode="python", exclude={"source"})
+    child = _absolute_paths(dict(overlay), Path(source).resolve().parent)
+    merged = _merge(raw, child)
+    try:
+        checked = Config.model_validate(merged)
+    except ValidationError as exc:
+        _, location, message = _first_problem(exc, merged)
+        raise BpsflowError(f"{where}.{location}: {message}", source=source) from None
+    checked.source = config.source
+    return checked
+
+
 def _resolve_paths(config: Config, path: Path) -> Config:
     from bpsflow.simulation.idf_syntax import check_idf_file
 

@@ -83,6 +83,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     from bpsflow.calibration import workflow
     from bpsflow.calibration.report import write
     from bpsflow.calibration.scenarios import write_comparison
+    from bpsflow.decision.workflow import config_fingerprint
     from bpsflow.measured import plausibility_reference, read_measured
     from bpsflow.simulation.backend import choose_backend
 
@@ -131,7 +132,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
         run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
                                           measured_path, method, folder, jobs, truth,
                                           show_progress)
-        paths = write(run, folder)
+        paths = write(run, folder, provenance={
+            "measured": str(Path(measured_path).resolve()),
+            "config": {"source": str(config.source), "fingerprint": config_fingerprint(config)}})
         outcome.runs.append(run)
         outcome.paths[scenario.name] = paths
         print_run(run, console)

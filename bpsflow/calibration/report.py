@@ -236,11 +236,16 @@ def observations_frame(run: CalibrationRun) -> pd.DataFrame:
     return pd.concat([frame, run.x.add_prefix("x_")], axis=1)
 
 
-def write(run: CalibrationRun, out_dir: Path) -> dict[str, Path]:
-    """Write every file and figure of one calibration into ``out_dir``."""
+def write(run: CalibrationRun, out_dir: Path, provenance: dict | None = None) -> dict[str, Path]:
+    """Write every file and figure of one calibration into ``out_dir``.
+
+    ``provenance`` (the measured file, the config and its fingerprint) goes into
+    ``calibration.json`` so that ``bpsflow decide`` can check what it is given.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"json": out_dir / CALIBRATION_FILE, "heldout": out_dir / HELDOUT_FILE}
     record = calibration_record(run)
+    record.update(provenance or {})
     write_json(paths["json"], record)
     write_csv(run.heldout, paths["heldout"], index=False, float_format="%.6g")
     write_parquet(observations_frame(run), out_dir / OBSERVATIONS_FILE, index=False)

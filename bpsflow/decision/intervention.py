@@ -1,0 +1,246 @@
+"""The intervention file of ``bpsflow decide``: the change, the test week, outcomes and rules.
+
+Example (``configs/hydronic_intervention.yaml``, seed §4.4.2)::
+
+    name: supply_minus_5K
+    change:
+      edits:                       # IDF fields changed from the model's own value
+      - target: {object: 'SetpointManager:OutdoorAirReset', name: '*',
+                 field: Setpoint at Outdoor High Temperature}
+        add: -5
+        minimum: 25
+      overlay: {}                  # optional: config keys merged over the config
+    week: {start: 03-20, days: 7}
+    outcomes:
+    - {name: week_heating_kwh, output: heating_kwh, statistic: total}
+    - name: discomfort_degree_hours
+      output: meeting_room_air_temperature_c
+      statistic: discomfort
+      setpoint: {parameter: setpoint_meeting_room}
+      hours: {days: weekdays, start_hour: 6, end_hour: 19}
+    rules:
+    - name: D1
+      threshold: 0.5
+      underperforms_when: any
+      events:
+      - {outcome: week_heating_kwh, above: {factor: 1.0}}
+      - {outcome: discomfort_degree_hours, above: {factor: 1.0, offset: 0.0}}
+
+Every name is checked against the config before anything runs: outputs,
+parameters, outcomes of the rules, and the overlay through the config schema.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from bpsflow.config import Config, IdfTarget, SafeName
+from bpsflow.errors import BpsflowError
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Edit(_Strict):
+    """A change to IDF fields: ``set`` a value, or ``add`` to / ``multiply`` the model's value.
+
+    ``minimum``/``maximum`` bound the result (the source: the supply temperature
+    lowered by 5 °C, never below 25 °C).
+    """
+
+    target: IdfTarget
+    set: float | None = None
+    add: float | None = None
+    multiply: float | None = None
+    minimum: float | None = None
+    maximum: float | None = None
+
+    @model_validator(mode="after")
+    def _one_change(self) -> Edit:
+        given = [k for k in ("set", "add", "multiply") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of set, add or multiply")
+        return self
+
+
+class Change(_Strict):
+    edits: list[Edit] = Field(default_factory=list)
+    overlay: dict = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _something(self) -> Change:
+        if not self.edits and not self.overlay:
+            raise ValueError("the change is empty: give edits or an overlay")
+        return self
+
+
+class Week(_Strict):
+    """The test period: ``days`` days from ``start`` (MM-DD, in the config's year)."""
+
+    start: str
+    days: int = Field(default=7, ge=1, le=366)
+
+
+class Hours(_Strict):
+    """The hours an outcome counts: a day set and an hour range [start_hour, end_hour)."""
+
+    days: Literal["all", "weekdays", "weekends"] = "all"
+    start_hour: int = Field(default=0, ge=0, le=23)
+    end_hour: int = Field(default=24, ge=1, le=24)
+
+
+class Setpoint(_Strict):
+    """The comfort setpoint: a fixed ``value_c``, or the value a calibrated ``parameter`` gives its field."""
+
+    value_c: float | None = None
+    parameter: str | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> Setpoint:
+        if (self.value_c is None) == (self.parameter is None):
+            raise ValueError("give either value_c or parameter")
+        return self
+
+
+class Outcome(_Strict):
+    """An outcome of the test week from one output's hourly series.
+
+    ``total``: the sum over the week's hours (energies); ``mean``: the mean;
+    ``discomfort``: degree-hours under ``setpoint`` per counted hour,
+    mean of max(0, setpoint - value) over ``hours`` (°C·h per h).
+    """
+
+    name: SafeName
+    output: str
+    statistic: Literal["total", "mean", "discomfort"]
+    hours: Hours = Field(default_factory=Hours)
+    setpoint: Setpoint | None = None
+
+    @model_validator(mode="after")
+    def _setpoint(self) -> Outcome:
+        if self.statistic == "discomfort" and self.setpoint is None:
+            raise ValueError("a discomfort outcome needs a setpoint")
+        return self
+
+
+class Bound(_Strict):
+    """``factor * business-as-usual + offset``."""
+
+    factor: float = 1.0
+    offset: float = 0.0
+
+
+class Event(_Strict):
+    """The intervention's outcome ``above`` (or ``below``) a bound on the business-as-usual one."""
+
+    outcome: str
+    above: Bound | None = None
+    below: Bound | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> Event:
+        if (self.above is None) == (self.below is None):
+            raise ValueError("give either above or below")
+        return self
+
+
+class Rule(_Strict):
+    """Implement unless P(underperformance) exceeds ``threshold``."""
+
+    name: SafeName
+    threshold: float = Field(default=0.5, gt=0, lt=1)
+    underperforms_when: Literal["any", "all"] = "any"
+    events: list[Event] = Field(min_length=1)
+
+
+class Sampling(_Strict):
+    posterior_draws: int = Field(default=100, ge=1, le=10_000)
+    permutations: int = Field(default=100, ge=1, le=10_000)
+    seed: int = Field(default=0, ge=0, le=2**32 - 1)
+
+
+class Intervention(_Strict):
+    name: SafeName
+    change: Change
+    week: Week
+    outcomes: list[Outcome] = Field(min_length=1)
+    rules: list[Rule] = Field(min_length=1)
+    sampling: Sampling = Field(default_factory=Sampling)
+
+    @model_validator(mode="after")
+    def _names(self) -> Intervention:
+        names = [o.name for o in self.outcomes]
+        if len(set(names)) != len(names):
+            raise ValueError("outcomes: names must be unique")
+        rules = [r.name for r in self.rules]
+        if len(set(rules)) != len(rules):
+            raise ValueError("rules: names must be unique")
+        for i, rule in enumerate(self.rules):
+            for j, event in enumerate(rule.events):
+                if event.outcome not in names:
+                    raise ValueError(f"rules[{i}] ({rule.name}).events[{j}].outcome: unknown "
+                                     f"outcome '{event.outcome}', expected one of {names}")
+        return self
+
+
+def load_intervention(path: Path, config: Config) -> Intervention:
+    """Read and check an intervention file against ``config``.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the file and key of the first problem: a schema error, an
+        output or parameter the config does not have, a week outside the
+        config's tests.
+    """
+    from bpsflow.config import _first_problem, parse_yaml, test_dates
+    from bpsflow.files import read_user_text
+
+    path = Path(path)
+    if not path.is_file():
+        raise BpsflowError(f"intervention file not found: {path}")
+    raw = parse_yaml(read_user_text(path, "an intervention file (YAML)"))
+    if not isinstance(raw, dict):
+        raise BpsflowError("expected a mapping with name, change, week, outcomes and rules",
+                           source=path)
+    try:
+        intervention = Intervention.model_validate(raw)
+    except ValidationError as exc:
+        _, where, message = _first_problem(exc, raw)
+        raise BpsflowError(f"{where}: {message}", source=path) from None
+    for i, outcome in enumerate(intervention.outcomes):
+        if outcome.output not in config.outputs:
+            raise BpsflowError(f"outcomes[{i}] ({outcome.name}).output: unknown output "
+                               f"'{outcome.output}', expected one of {sorted(config.outputs)}",
+                               source=path)
+        if outcome.setpoint is not None and outcome.setpoint.parameter is not None:
+            names = [p.name for p in config.parameters]
+            if outcome.setpoint.parameter not in names:
+                raise BpsflowError(f"outcomes[{i}] ({outcome.name}).setpoint.parameter: unknown "
+                                   f"parameter '{outcome.setpoint.parameter}'", source=path)
+    week_start, week_end = week_dates(intervention, config, path)
+    covered = False
+    for test in config.model.tests:
+        _, first, last = test_dates(test, config.model.year)
+        covered |= first <= week_start and week_end <= last
+    if not covered:
+        raise BpsflowError(f"week: {week_start:%m-%d}..{week_end:%m-%d} is not inside the "
+                           f"evaluated days of any test of the config", source=path)
+    return intervention
+
+
+def week_dates(intervention: Intervention, config: Config, source: Path | None = None):
+    """First and last day of the intervention's test week."""
+    from datetime import timedelta
+
+    from bpsflow.config import _parse_month_day
+
+    try:
+        start = _parse_month_day(intervention.week.start, config.model.year)
+    except ValueError as exc:
+        raise BpsflowError(f"week.start: {exc}", source=source) from None
+    return start, start + timedelta(days=intervention.week.days - 1)

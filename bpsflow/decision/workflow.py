@@ -1,0 +1,375 @@
+"""``bpsflow decide``: the decision risk of an intervention from a calibrated model (seed §4.4.2).
+
+For one calibration (or every scenario's, ``--scenarios``):
+
+1. take ``sampling.posterior_draws`` evenly spaced draws of the posterior
+   (``posterior.parquet``); parameters the calibration did not calibrate keep
+   the values it held them at (their nominal values);
+2. re-run every draw on the physical model as it is (business as usual) and
+   with the intervention's change, through the one simulation layer;
+3. per draw, the errors on the test week (measured minus business-as-usual
+   prediction, per output) are permuted ``sampling.permutations`` times and
+   added to the draw's intervention prediction (the same permutation for
+   every output of a draw, so their joint timing stays together);
+4. per rule, the share of the draws x permutations outcomes in which the rule's
+   events happen is the underperformance probability ``p``; the decision is
+   to implement when ``p <= threshold``, and its risk is eq. 23.
+
+The business-as-usual outcome is the measured one (a discomfort outcome with
+a calibrated setpoint gets one value per draw: the measured temperatures
+against that draw's setpoint).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from rich.console import Console
+
+from bpsflow.config import Config, IdfTarget, Parameter
+from bpsflow.decision.intervention import Intervention, load_intervention, week_dates
+from bpsflow.decision.outcomes import counted_hours, outcome_values
+from bpsflow.decision.risk import decision_risk, event_happens, underperformance_probability
+from bpsflow.errors import BpsflowError
+
+DECISION_DIR = "decision"
+DECISION_FILE = "decision.json"
+
+
+def config_fingerprint(config: Config) -> str:
+    """A digest of what a calibration depends on: the model files, parameters, outputs and tests."""
+    files = [config.model.idf, *config.model.idf_objects]
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(Path(path).read_bytes())
+    spec = {"parameters": [p.model_dump(mode="json", exclude={"group", "description"})
+                           for p in config.parameters],
+            "outputs": {k: v.model_dump(mode="json") for k, v in config.outputs.items()},
+            "tests": [t.model_dump(mode="json") for t in config.model.tests],
+            "weather": Path(config.model.weather).name, "year": config.model.year}
+    digest.update(json.dumps(spec, sort_keys=True, default=str).encode())
+    return digest.hexdigest()[:16]
+
+
+@dataclass
+class Calibrated:
+    """One calibration's posterior and where it lives."""
+
+    folder: Path
+    name: str
+    record: dict
+    draws: pd.DataFrame
+    parameters: list[str] = field(default_factory=list)
+
+
+def read_calibration(folder: Path, config: Config) -> Calibrated:
+    """``calibration.json`` and ``posterior.parquet`` of one calibration, checked against ``config``."""
+    from bpsflow.calibration.report import CALIBRATION_FILE, POSTERIOR_FILE
+
+    folder = Path(folder)
+    record_path, posterior_path = folder / CALIBRATION_FILE, folder / POSTERIOR_FILE
+    if not record_path.is_file():
+        raise BpsflowError(f"--calibration: no {CALIBRATION_FILE} in {folder} (expected the "
+                           f"folder 'bpsflow calibrate' wrote, RUN_DIR/calibration)")
+    try:
+        record = json.loads(record_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise BpsflowError(f"cannot read {record_path}: {exc}") from None
+    if not posterior_path.is_file():
+        raise BpsflowError(f"--calibration: no {POSTERIOR_FILE} in {folder}: a decision needs "
+                           f"a Bayesian calibration's posterior (method bayes)")
+    wanted = record.get("config", {}).get("fingerprint")
+    if wanted is not None and wanted != config_fingerprint(config):
+        raise BpsflowError(
+            f"--calibration: {folder} was calibrated with another config "
+            f"({record['config'].get('source', 'unknown')}: its model, parameters, outputs or "
+            f"tests differ from {config.source}); decide with the config it was calibrated with")
+    names = [p["name"] for p in record.get("parameters", []) if "name" in p]
+    known = {p.name: p for p in config.parameters}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise BpsflowError(f"--calibration: {folder} calibrated parameter(s) "
+                           f"{', '.join(unknown)} that {config.source} does not have: it was "
+                           f"calibrated with another config")
+    draws = pd.read_parquet(posterior_path)
+    missing = [n for n in names if n not in draws.columns]
+    if missing:
+        raise BpsflowError(f"{posterior_path}: no column for calibrated parameter(s) "
+                           f"{', '.join(missing)}")
+    return Calibrated(folder=folder, name=record.get("scenario", {}).get("name", folder.name),
+                      record=record, draws=draws, parameters=names)
+
+
+def intervention_config(config: Config, intervention: Intervention, source: Path) -> tuple[Config, dict[str, float]]:
+    """The config with the intervention's change: its overlay merged, its edits as constants.
+
+    Returns the changed config and the constant parameters the edits add
+    (name -> value written to the field).
+    """
+    from bpsflow.config import with_overlay
+    from bpsflow.distributions import Constant
+    from bpsflow.simulation.target_bounds import targeted_fields
+
+    changed = with_overlay(config, intervention.change.overlay, source,
+                           where="change.overlay") if intervention.change.overlay else \
+        config.model_copy(deep=True)
+    added: dict[str, float] = {}
+    for i, edit in enumerate(intervention.change.edits):
+        probe = changed.model_copy(deep=True)
+        probe.parameters = [Parameter(name="intervention_probe", mode="absolute",
+                                      distribution=Constant(type="constant", value=0.0),
+                                      targets=[edit.target])]
+        try:
+            fields = targeted_fields(probe)
+        except BpsflowError as exc:
+            raise BpsflowError(f"change.edits[{i}].target: {exc.message}", source=source) from None
+        if not fields:
+            raise BpsflowError(f"change.edits[{i}].target: no {edit.target.object} named "
+                               f"'{edit.target.name}' in the model", source=source)
+        for found in fields:
+            clash = [p.name for p in changed.parameters for t in p.targets
+                     if isinstance(t, IdfTarget) and t.object.upper() == edit.target.object.upper()
+                     and t.field.lower() == edit.target.field.lower()]
+            if clash:
+                raise BpsflowError(f"change.edits[{i}]: parameter {clash[0]} already sets "
+                                   f"{edit.target.object} {edit.target.field}; change it "
+                                   f"through change.overlay instead", source=source)
+            if found.nominal is None:
+                raise BpsflowError(f"change.edits[{i}]: {found.obj.where} has no number in "
+                                   f"{edit.target.field}", source=source)
+            value = (edit.set if edit.set is not None else
+                     found.nominal + edit.add if edit.add is not None else
+                     found.nominal * float(edit.multiply))  # type: ignore[arg-type]
+            if edit.minimum is not None:
+                value = max(value, edit.minimum)
+            if edit.maximum is not None:
+                value = min(value, edit.maximum)
+            name = f"intervention_edit_{i}_{len(added)}"
+            changed.parameters.append(Parameter(
+                name=name, mode="absolute", group="intervention",
+                distribution=Constant(type="constant", value=float(value)),
+                targets=[IdfTarget(object=edit.target.object, name=found.obj.name,
+                                   field=edit.target.field)],
+                description=f"{found.obj.where}: {edit.target.field} {found.nominal:g} -> {value:g}"))
+            added[name] = float(value)
+    return changed, added
+
+
+def _draw_samples(config: Config, calibrated: Calibrated, count: int) -> pd.DataFrame:
+    from bpsflow.calibration.design import nominal_sample
+
+    pick = np.linspace(0, len(calibrated.draws) - 1, min(count, len(calibrated.draws))).astype(int)
+    base = nominal_sample(config)
+    frame = pd.DataFrame([base] * len(pick), index=pd.RangeIndex(len(pick), name="instance"))
+    for name in calibrated.parameters:
+        frame[name] = calibrated.draws[name].to_numpy()[pick]
+    return frame
+
+
+def _week_series(results: pd.DataFrame, output: str, hour_ends: pd.DatetimeIndex) -> np.ndarray:
+    """(instances, hours) matrix of one output over the week's hour-ending stamps."""
+    mine = results[results["output"] == output]
+    table = mine.pivot_table(index="instance", columns="timestamp", values="value")
+    missing = hour_ends.difference(pd.DatetimeIndex(table.columns))
+    if len(missing):
+        raise BpsflowError(f"the simulations have no {output} at {missing[0]} (the week must lie "
+                           f"in a test's evaluated days)")
+    return table.reindex(columns=hour_ends).to_numpy()
+
+
+def _setpoints(outcome, config: Config, samples: pd.DataFrame) -> np.ndarray | None:
+    """The comfort setpoint per draw (°C): fixed, or the field value the calibrated parameter gives."""
+    from bpsflow.simulation.target_bounds import targeted_fields
+    from bpsflow.simulation.targets import apply_mode
+
+    if outcome.setpoint is None:
+        return None
+    if outcome.setpoint.value_c is not None:
+        return np.full(len(samples), outcome.setpoint.value_c)
+    parameter = config.parameter(outcome.setpoint.parameter)
+    fields = [f for f in targeted_fields(config) if any(p is parameter for p in f.parameters)]
+    nominal = fields[0].nominal if fields and fields[0].nominal is not None else 0.0
+    return np.asarray(apply_mode(parameter.mode, nominal,
+                                 samples[parameter.name].to_numpy()), dtype=float)
+
+
+def decide_one(config: Config, calibrated: Calibrated, intervention: Intervention,
+               changed: Config, measured: pd.DataFrame, out_dir: Path, *, backend: str,
+               jobs: int | None, show_progress: bool, console: Console) -> dict:
+    """Decision risk of the intervention for one calibration; writes ``decision.json`` and a figure."""
+    from bpsflow.calibration.design import run_samples
+    from bpsflow.decision.report import plot_risks
+    from bpsflow.files import write_json
+
+    sampling = intervention.sampling
+    samples = _draw_samples(config, calibrated, sampling.posterior_draws)
+    changed_samples = samples.copy()
+    for p in changed.parameters:
+        if p.name not in changed_samples:
+            changed_samples[p.name] = float(p.distribution.nominal)
+    console.print(f"[{calibrated.name}] {len(samples)} posterior draws, each run as it is and "
+                  f"with '{intervention.name}'")
+    as_is = run_samples(config, samples, out_dir / "runs_as_is", backend=backend, jobs=jobs,
+                        show_progress=show_progress)
+    with_change = run_samples(changed, changed_samples, out_dir / "runs_intervention",
+                              backend=backend, jobs=jobs, show_progress=show_progress)
+    first, last = week_dates(intervention, config)
+    hour_ends = pd.date_range(pd.Timestamp(first) + pd.Timedelta(hours=1),
+                              pd.Timestamp(last) + pd.Timedelta(days=1), freq="h")
+    outputs = sorted({o.output for o in intervention.outcomes})
+    observed = {}
+    for output in outputs:
+        if output not in measured.columns:
+            raise BpsflowError(f"the measured data have no column {output}, which outcome(s) "
+                               f"of the intervention need for the test week")
+        values = measured[output].reindex(hour_ends)
+        if values.isna().any():
+            raise BpsflowError(f"the measured {output} misses {int(values.isna().sum())} hour(s) "
+                               f"of the test week {first:%m-%d}..{last:%m-%d}")
+        observed[output] = values.to_numpy()
+    predicted_as_is = {o: _week_series(as_is, o, hour_ends) for o in outputs}
+    predicted_change = {o: _week_series(with_change, o, hour_ends) for o in outputs}
+    rng = np.random.default_rng(sampling.seed)
+    draws, perms = len(samples), sampling.permutations
+    projected = {o.name: np.empty((draws, perms)) for o in intervention.outcomes}
+    reference = {o.name: np.empty((draws, perms)) for o in intervention.outcomes}
+    setpoints = {o.name: _setpoints(o, config, samples) for o in intervention.outcomes}
+    masks = {o.name: counted_hours(hour_ends, o.hours) for o in intervention.outcomes}
+    for j in range(draws):
+        order = np.argsort(rng.random((perms, len(hour_ends))), axis=1)
+        for outcome in intervention.outcomes:
+            errors = observed[outcome.output] - predicted_as_is[outcome.output][j]
+            series = predicted_change[outcome.output][j][None, :] + errors[order]
+            setpoint = None if setpoints[outcome.name] is None else setpoints[outcome.name][j]
+            projected[outcome.name][j] = outcome_values(outcome, series, masks[outcome.name],
+                                                        setpoint)
+            reference[outcome.name][j] = outcome_values(
+                outcome, observed[outcome.output], masks[outcome.name], setpoint)[0]
+    rules = []
+    for rule in intervention.rules:
+        events = []
+        for event in rule.events:
+            bound = event.above or event.below
+            events.append(event_happens(projected[event.outcome].ravel(),
+                                        reference[event.outcome].ravel(), bound.factor,
+                                        bound.offset, above=event.above is not None))
+        p = underperformance_probability(events, rule.underperforms_when)
+        rules.append({
+            "name": rule.name, "threshold": rule.threshold,
+            "underperforms_when": rule.underperforms_when,
+            "events": [{**e.model_dump(exclude_none=True), "probability": float(h.mean())}
+                       for e, h in zip(rule.events, events)],
+            "underperformance_probability": p,
+            "implement": bool(p <= rule.threshold),
+            "decision_risk": float(decision_risk(p, rule.threshold))})
+    record = {
+        "intervention": intervention.name, "calibration": str(calibrated.folder),
+        "scenario": calibrated.name,
+        "week": [f"{first:%Y-%m-%d}", f"{last:%Y-%m-%d}"],
+        "posterior_draws": draws, "permutations": perms, "outcomes_sampled": draws * perms,
+        "seed": sampling.seed,
+        "method": "posterior draws re-run on the physical model; model bias added as a random "
+                  "permutation of each draw's test-week errors (seed §4.4.2); decision risk eq. 23",
+        "outcomes": {o.name: {
+            "output": o.output, "statistic": o.statistic,
+            "business_as_usual": _summary(reference[o.name][:, 0]),
+            "intervention": _summary(projected[o.name].ravel())} for o in intervention.outcomes},
+        "rules": rules,
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_json(out_dir / DECISION_FILE, record)
+    record["figure"] = str(plot_risks(record, out_dir / "decision_risk.png"))
+    return record
+
+
+def _summary(values: np.ndarray) -> dict[str, float]:
+    values = np.asarray(values, dtype=float)
+    q05, q50, q95 = np.quantile(values, [0.05, 0.5, 0.95])
+    return {"mean": float(values.mean()), "q05": float(q05), "median": float(q50),
+            "q95": float(q95)}
+
+
+def decide(config: Config, calibration: Path, intervention_path: Path, *,
+           scenarios: bool = False, measured_path: Path | None = None,
+           jobs: int | None = None, show_progress: bool = True,
+           console: Console | None = None) -> dict:
+    """Run ``bpsflow decide`` (see the module docstring); returns what was written."""
+    from bpsflow.calibration.command import SCENARIOS_DIR
+    from bpsflow.decision.report import plot_correlation
+    from bpsflow.files import write_json
+    from bpsflow.measured import read_measured
+    from bpsflow.simulation.backend import choose_backend
+
+    console = console or Console()
+    intervention = load_intervention(intervention_path, config)
+    changed, added = intervention_config(config, intervention, Path(intervention_path))
+    for name in added:
+        console.print(f"intervention: {changed.parameter(name).description}")
+    calibration = Path(calibration)
+    folders = ([p for p in sorted((calibration / SCENARIOS_DIR).iterdir()) if p.is_dir()]
+               if scenarios and (calibration / SCENARIOS_DIR).is_dir() else [calibration])
+    if scenarios and folders == [calibration]:
+        raise BpsflowError(f"--scenarios: no {SCENARIOS_DIR}/ folder in {calibration} (run "
+                           f"'bpsflow calibrate --scenarios' first)")
+    calibrations = [read_calibration(f, config) for f in folders]
+    path = measured_path or calibrations[0].record.get("measured")
+    if path is None:
+        raise BpsflowError("--measured: the calibration does not record its measured file; "
+                           "give it with --measured")
+    data = read_measured(Path(path), config, required=sorted({o.output for o in intervention.outcomes}))
+    for note in data.notes:
+        console.print(f"[yellow]{note}[/yellow]", highlight=False)
+    backend = choose_backend(config, console.print).name
+    records = []
+    for calibrated in calibrations:
+        out_dir = calibrated.folder / DECISION_DIR / intervention.name
+        records.append(decide_one(config, calibrated, intervention, changed, data.frame, out_dir,
+                                  backend=backend, jobs=jobs, show_progress=show_progress,
+                                  console=console))
+        for rule in records[-1]["rules"]:
+            console.print(f"[{calibrated.name}] {rule['name']}: p = "
+                          f"{rule['underperformance_probability']:.3f}, "
+                          f"{'implement' if rule['implement'] else 'do not implement'}, decision "
+                          f"risk {rule['decision_risk']:.3f}")
+        console.print(f"wrote {out_dir / DECISION_FILE}")
+    summary: dict = {"decisions": records}
+    if scenarios:
+        from bpsflow.decision.risk import accuracy_risk_correlation
+
+        accuracy, risks = _accuracy_and_risks(calibrations, records)
+        summary["correlation"] = accuracy_risk_correlation(accuracy, risks)
+        out = calibration / DECISION_DIR / intervention.name
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "correlation.json", {"scenarios": [c.name for c in calibrations],
+                                              "accuracy": accuracy, "risks": risks,
+                                              "pearson": summary["correlation"]})
+        summary["correlation_figure"] = str(plot_correlation(summary["correlation"],
+                                                             out / "accuracy_vs_risk.png"))
+        console.print(f"wrote {out / 'correlation.json'} and {summary['correlation_figure']}")
+    return summary
+
+
+def _accuracy_and_risks(calibrations: list[Calibrated], records: list[dict]):
+    """Held-out accuracy of each scenario's physical re-run and its decision risks (Figure 4.11)."""
+    accuracy: dict[str, list[float]] = {}
+    risks: dict[str, list[float]] = {}
+    for k, (calibrated, record) in enumerate(zip(calibrations, records)):
+        for row in calibrated.record.get("heldout", []):
+            if row.get("model") != "bayes_physical" or row.get("resolution") != "hourly":
+                continue
+            for metric in ("cv_rmse", "nmcrps"):
+                if row.get(metric) is not None:
+                    key = f"{metric}:{row['output']}"
+                    accuracy.setdefault(key, [np.nan] * len(records))[k] = float(row[metric])
+        for rule in record["rules"]:
+            risks.setdefault(rule["name"], [np.nan] * len(records))[k] = rule["decision_risk"]
+            for event in rule["events"]:
+                key = f"{rule['name']}:{event['outcome']}"
+                p = event["probability"]
+                risks.setdefault(key, [np.nan] * len(records))[k] = float(decision_risk(p))
+    return accuracy, risks
