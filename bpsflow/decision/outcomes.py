@@ -17,7 +17,7 @@ from bpsflow.decision.intervention import Hours, Outcome
 def counted_hours(hour_ends: pd.DatetimeIndex, hours: Hours) -> np.ndarray:
     """Which hour-ending stamps fall in ``hours`` (judged by the hour each interval starts)."""
     starts = pd.DatetimeIndex(hour_ends) - pd.Timedelta(hours=1)
-    weekend = starts.dayofweek >= 5
+    weekend = starts.day_of_week >= 5
     day_ok = {"all": np.ones(len(starts), bool), "weekdays": ~weekend,
               "weekends": weekend}[hours.days]
     hour_ok = (starts.hour >= hours.start_hour) & (starts.hour < hours.end_hour)

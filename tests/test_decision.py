@@ -1,0 +1,138 @@
+"""Decision risk (seed §4.4.2, eq. 23): the risk function, the permuted-error predictive,
+outcomes, rules read from YAML and the intervention's bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bpsflow.config import load_config
+from bpsflow.decision.intervention import Hours, Outcome, Setpoint, load_intervention
+from bpsflow.decision.outcomes import counted_hours, outcome_values
+from bpsflow.decision.risk import (
+    accuracy_risk_correlation,
+    decision_risk,
+    event_happens,
+    permuted_error_outcomes,
+    underperformance_probability,
+)
+from bpsflow.errors import BpsflowError
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def test_eq23_on_constructed_probabilities():
+    p = np.array([0.0, 0.1, 0.5, 0.51, 0.9, 1.0])
+    np.testing.assert_allclose(decision_risk(p), [0.0, 0.1, 0.5, 0.49, 0.1, 0.0])
+    assert decision_risk(0.3, threshold=0.2) == pytest.approx(0.7)
+    with pytest.raises(ValueError):
+        decision_risk(1.2)
+
+
+def test_permuted_errors_against_a_hand_computation():
+    prediction = np.array([1.0, 2.0, 3.0])
+    errors = np.array([0.5, -1.0, 2.0])
+    rng = np.random.default_rng(0)
+    maxima = permuted_error_outcomes(prediction, errors, lambda s: s.max(axis=1), 6000, rng)
+    # the six orders of the errors give these maxima: prediction + each permutation
+    hand = {}
+    import itertools
+    for order in itertools.permutations(range(3)):
+        value = float((prediction + errors[list(order)]).max())
+        hand[value] = hand.get(value, 0) + 1 / 6
+    seen = pd.Series(maxima).round(9).value_counts(normalize=True)
+    for value, share in hand.items():
+        assert seen[round(value, 9)] == pytest.approx(share, abs=0.02)
+    # a total is unchanged by a permutation: the draw's total error shifts it
+    totals = permuted_error_outcomes(prediction, errors, lambda s: s.sum(axis=1), 50, rng)
+    np.testing.assert_allclose(totals, prediction.sum() + errors.sum())
+
+
+def test_underperformance_and_events():
+    projected = np.array([9.0, 11.0, 10.0, 12.0])
+    reference = np.full(4, 10.0)
+    heat = event_happens(projected, reference, factor=1.0)
+    np.testing.assert_array_equal(heat, [False, True, False, True])
+    comfort = event_happens(np.array([0.0, 0.0, 1.0, 0.0]), np.zeros(4), offset=0.5)
+    assert underperformance_probability([heat, comfort], "any") == 0.75
+    assert underperformance_probability([heat, comfort], "all") == 0.0
+
+
+def test_outcomes_total_and_discomfort():
+    hours = pd.date_range("2017-03-20 01:00", periods=48, freq="h")   # Monday and Tuesday
+    mask = counted_hours(hours, Hours(days="weekdays", start_hour=6, end_hour=19))
+    assert mask.sum() == 26
+    temperature = np.full(48, 20.0)
+    discomfort = Outcome(name="d", output="t", statistic="discomfort",
+                         setpoint=Setpoint(value_c=21.0), hours=Hours())
+    assert outcome_values(discomfort, temperature, np.ones(48, bool), 21.0)[0] == pytest.approx(1.0)
+    assert outcome_values(discomfort, temperature, np.ones(48, bool), np.array([19.0]))[0] == 0.0
+    total = Outcome(name="e", output="h", statistic="total")
+    assert outcome_values(total, np.arange(48.0), mask)[0] == pytest.approx(np.arange(48.0)[mask].sum())
+
+
+def test_correlation_across_scenarios():
+    table = accuracy_risk_correlation({"cv": [0.1, 0.2, 0.3, 0.4]},
+                                      {"D1": [0.0, 0.1, 0.2, 0.3], "flat": [0.1] * 4})
+    assert table["cv"]["D1"] == pytest.approx(1.0)
+    assert table["cv"]["flat"] is None
+
+
+@pytest.fixture(scope="module")
+def hydronic():
+    return load_config(CONFIGS / "hydronic.yaml")
+
+
+def test_shipped_intervention_reads(hydronic):
+    intervention = load_intervention(CONFIGS / "hydronic_intervention.yaml", hydronic)
+    assert [r.name for r in intervention.rules] == ["D1", "D2"]
+    assert intervention.rules[1].events[0].above.factor == 0.9
+
+
+def _bad(tmp_path: Path, text: str, hydronic) -> str:
+    path = tmp_path / "bad.yaml"
+    base = (CONFIGS / "hydronic_intervention.yaml").read_text()
+    path.write_text(text(base) if callable(text) else text)
+    with pytest.raises(BpsflowError) as info:
+        from bpsflow.decision.workflow import intervention_config
+
+        intervention = load_intervention(path, hydronic)
+        intervention_config(hydronic, intervention, path)
+    return str(info.value)
+
+
+def test_rule_on_unknown_outcome(tmp_path, hydronic):
+    message = _bad(tmp_path, lambda t: t.replace("{outcome: week_heating_kwh, above: {factor: 0.9}}",
+                                                 "{outcome: week_gas_kwh, above: {factor: 0.9}}"),
+                   hydronic)
+    assert "rules[1]" in message and "week_gas_kwh" in message and "bad.yaml" in message
+
+
+def test_unknown_output_and_key(tmp_path, hydronic):
+    assert "heat_kwh" in _bad(tmp_path, lambda t: t.replace("output: heating_kwh", "output: heat_kwh"),
+                              hydronic)
+    assert "unknown key" in _bad(tmp_path, lambda t: t + "\ncolour: blue\n", hydronic)
+
+
+def test_overlay_with_unknown_config_key(tmp_path, hydronic):
+    message = _bad(tmp_path, lambda t: t.replace("change:\n", "change:\n  overlay: {design: {sample: 3}}\n"),
+                   hydronic)
+    assert "change.overlay" in message and "sample" in message and "unknown key" in message
+
+
+def test_edit_of_unknown_field(tmp_path, hydronic):
+    message = _bad(tmp_path, lambda t: t.replace("Setpoint at Outdoor Low Temperature",
+                                                 "Setpoint at Outdoor Lo Temperature"), hydronic)
+    assert "change.edits[0]" in message
+
+
+def test_edits_are_clipped_at_their_minimum(hydronic):
+    from bpsflow.decision.workflow import intervention_config
+
+    path = CONFIGS / "hydronic_intervention.yaml"
+    changed, added = intervention_config(hydronic, load_intervention(path, hydronic), path)
+    assert sorted(added.values()) == [25.0, 60.0]     # 30 - 5 = 25 (the floor) and 65 - 5
+    assert len(changed.parameters) == len(hydronic.parameters) + 2
