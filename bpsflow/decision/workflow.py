@@ -209,9 +209,9 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
     sampling = intervention.sampling
     samples = _draw_samples(config, calibrated, sampling.posterior_draws)
     changed_samples = samples.copy()
-    for p in changed.parameters:
-        if p.name not in changed_samples:
-            changed_samples[p.name] = float(p.distribution.nominal)
+    for parameter in changed.parameters:
+        if parameter.name not in changed_samples:
+            changed_samples[parameter.name] = float(parameter.distribution.nominal)
     console.print(f"[{calibrated.name}] {len(samples)} posterior draws, each run as it is and "
                   f"with '{intervention.name}'")
     as_is = run_samples(config, samples, out_dir / "runs_as_is", backend=backend, jobs=jobs,
@@ -245,7 +245,8 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
         for outcome in intervention.outcomes:
             errors = observed[outcome.output] - predicted_as_is[outcome.output][j]
             series = predicted_change[outcome.output][j][None, :] + errors[order]
-            setpoint = None if setpoints[outcome.name] is None else setpoints[outcome.name][j]
+            per_draw = setpoints[outcome.name]
+            setpoint = None if per_draw is None else per_draw[j]
             projected[outcome.name][j] = outcome_values(outcome, series, masks[outcome.name],
                                                         setpoint)
             reference[outcome.name][j] = outcome_values(
@@ -254,19 +255,20 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
     for rule in intervention.rules:
         events = []
         for event in rule.events:
-            bound = event.above or event.below
+            bound = event.above if event.above is not None else event.below
+            assert bound is not None  # the schema asks for one of them
             events.append(event_happens(projected[event.outcome].ravel(),
                                         reference[event.outcome].ravel(), bound.factor,
                                         bound.offset, above=event.above is not None))
-        p = underperformance_probability(events, rule.underperforms_when)
+        probability = underperformance_probability(events, rule.underperforms_when)
         rules.append({
             "name": rule.name, "threshold": rule.threshold,
             "underperforms_when": rule.underperforms_when,
             "events": [{**e.model_dump(exclude_none=True), "probability": float(h.mean())}
                        for e, h in zip(rule.events, events)],
-            "underperformance_probability": p,
-            "implement": bool(p <= rule.threshold),
-            "decision_risk": float(decision_risk(p, rule.threshold))})
+            "underperformance_probability": probability,
+            "implement": bool(probability <= rule.threshold),
+            "decision_risk": float(decision_risk(probability, rule.threshold))})
     record = {
         "intervention": intervention.name, "calibration": str(calibrated.folder),
         "scenario": calibrated.name,

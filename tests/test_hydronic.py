@@ -1,0 +1,86 @@
+"""The hydronic office case (seed chapter 4): the model runs its own controls (mode model),
+one config drives the prototype and the room-by-room baseline, and bad mixes are refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from bpsflow.cli import app
+from bpsflow.config import load_config
+from bpsflow.errors import BpsflowError
+from bpsflow.simulation.targets import matches_name
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def test_name_patterns():
+    assert matches_name("Cellular Office*", "Cellular Office")
+    assert matches_name("cellular office*", "Cellular Office 07")
+    assert matches_name("Cellular Office*Heating Setpoint", "Cellular Office 07 Own Heating Setpoint")
+    assert not matches_name("Cellular Office*", "Open Office")
+    assert not matches_name("Cellular Office", "Cellular Office 07")
+    assert matches_name("Office [A]", "office [a]")      # brackets are plain characters
+
+
+def _write(tmp_path: Path, tests: list[dict]) -> Path:
+    raw = {"extends": str(CONFIGS / "hydronic.yaml"), "model": {"tests": tests}}
+    path = tmp_path / "case.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_model_mode_cannot_mix_with_tool_setpoints(tmp_path):
+    own = {"name": "A", "period": "spring", "start": "02-13", "days": 8, "warmup_days": 2,
+           "mode": "model", "outputs": ["heating_kwh"]}
+    tool = {**own, "name": "B", "mode": "heating", "setpoint_c": 21}
+    with pytest.raises(BpsflowError, match="mode model"):
+        load_config(_write(tmp_path, [own, tool]))
+    with pytest.raises(BpsflowError, match="takes no setpoint_c"):
+        load_config(_write(tmp_path, [{**own, "setpoint_c": 21}]))
+
+
+def test_surrogate_refuses_the_hydronic_model():
+    from bpsflow.surrogate.support import unsupported_features
+
+    lacking = unsupported_features(load_config(CONFIGS / "hydronic.yaml"))
+    assert any("mode model" in reason for reason in lacking)
+
+
+@pytest.mark.energyplus
+def test_prototype_and_baseline_run_their_own_controls(tmp_path):
+    """Two prototype instances and the baseline truth: the radiators heat on weekdays only
+    (the model's schedule, not the tool's), and one config's targets reach both models."""
+    runner = CliRunner()
+    run_dir = tmp_path / "run"
+    config = tmp_path / "two.yaml"
+    config.write_text(yaml.safe_dump({"extends": str(CONFIGS / "hydronic.yaml"),
+                                      "design": {"samples": 2},
+                                      "execution": {"run_dir": str(run_dir)}}))
+    result = runner.invoke(app, ["sample", str(config)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["run", str(config), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    results = pd.read_parquet(run_dir / "results.parquet")
+    heating = results[results["output"] == "heating_kwh"]
+    starts = heating["timestamp"] - pd.Timedelta(hours=1)
+    weekend = starts.dt.day_of_week >= 5
+    night = (starts.dt.hour < 6) | (starts.dt.hour >= 19)
+    assert heating.loc[weekend | night, "value"].abs().max() < 1e-6
+    assert heating.loc[~weekend & ~night, "value"].mean() > 1.0       # kWh per hour
+    temperature = results[results["output"] == "meeting_room_air_temperature_c"]["value"]
+    assert 10 < temperature.min() and temperature.max() < 30
+    truth_dir = tmp_path / "truth"
+    result = runner.invoke(app, ["synth", str(CONFIGS / "hydronic_baseline.yaml"), "--truth",
+                                 str(CONFIGS / "hydronic_truth.yaml"), "--run-dir", str(truth_dir)])
+    assert result.exit_code == 0, result.output
+    measured = pd.read_csv(truth_dir / "truth" / "measured.csv", parse_dates=["timestamp"])
+    assert {"heating_kwh", "electricity_kwh", "meeting_room_air_temperature_c"} <= set(measured)
+    simulated = heating.groupby("instance")["value"].sum().mean()
+    window = measured["timestamp"].isin(heating["timestamp"])
+    # the baseline is another model of the same floor: the same order of heat
+    assert 0.5 < measured.loc[window, "heating_kwh"].sum() / simulated < 2.0
