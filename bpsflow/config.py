@@ -22,6 +22,8 @@ Relative paths are resolved against the directory of the config file.
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import os
 import re
 from collections.abc import Mapping
@@ -881,3 +883,18 @@ def _resolve_paths(config: Config, path: Path) -> Config:
         config.execution.run_dir = _resolve(config.execution.run_dir, base)
     config.source = path.resolve()
     return config
+
+
+def config_fingerprint(config: Config) -> str:
+    """A digest of what a calibration depends on: the model files, parameters, outputs and tests."""
+    files = [config.model.idf, *config.model.idf_objects]
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(Path(path).read_bytes())
+    spec = {"parameters": [p.model_dump(mode="json", exclude={"group", "description"})
+                           for p in config.parameters],
+            "outputs": {k: v.model_dump(mode="json") for k, v in config.outputs.items()},
+            "tests": [t.model_dump(mode="json") for t in config.model.tests],
+            "weather": Path(config.model.weather).name, "year": config.model.year}
+    digest.update(json.dumps(spec, sort_keys=True, default=str).encode())
+    return digest.hexdigest()[:16]

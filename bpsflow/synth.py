@@ -40,13 +40,21 @@ class Noise(BaseModel):
     ``e_t = φ e_(t-1) + sqrt(1 - φ²) z_t`` with ``z_t`` standard normal and
     ``e_0 = z_0``, so every hour keeps the standard deviation ``bound / 3``
     (a slowly drifting sensor rather than white noise). The process restarts
-    at every gap in the hourly timestamps (between test windows).
+    at every gap in the timestamps (between test windows).
+
+    ``increment`` (optional, output units) makes the output a cumulative meter
+    read in fixed steps that restarts at midnight, as the source's heating meter
+    (seed §4.3.3): within each day the noisy values are summed, the running
+    total is read down to a whole number of increments, and each interval's
+    value is the reading's advance. A day's total keeps its value to within one
+    increment; single intervals can read 0 or a whole increment.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["absolute", "relative"]
     bound: float = Field(ge=0)
     autocorrelation: float = Field(default=0.0, ge=0.0, lt=1.0)
+    increment: float | None = Field(default=None, gt=0)
 
 
 class Truth(BaseModel):
@@ -149,17 +157,51 @@ def ar1_noise(innovations: np.ndarray, autocorrelation: float,
     return out
 
 
+def metered(values: np.ndarray, timestamps: pd.DatetimeIndex, increment: float,
+            step: pd.Timedelta) -> np.ndarray:
+    """Interval values as a cumulative meter read in ``increment`` steps and reset at midnight.
+
+    Parameters
+    ----------
+    values : ndarray
+        Consumption per interval (e.g. kWh per 15 minutes), in time order.
+    timestamps : DatetimeIndex
+        Interval-ending stamps; an interval belongs to the day it starts in.
+    increment : float
+        The meter's reading step, in the values' unit.
+    step : Timedelta
+        The interval length.
+
+    Returns
+    -------
+    ndarray
+        The advance of ``increment * floor(running daily total / increment)``
+        over each interval.
+    """
+    values = np.asarray(values, dtype=float)
+    days = (pd.DatetimeIndex(timestamps) - step).normalize()
+    out = np.empty_like(values)
+    for day in pd.unique(days):
+        mine = np.flatnonzero(days == day)
+        reading = np.floor(np.cumsum(values[mine]) / increment + 1e-9) * increment
+        out[mine] = np.diff(reading, prepend=0.0)
+    return out
+
+
 def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Truth) -> pd.DataFrame:
     """Wide, noisy measurements of the config's outputs from a truth instance's tidy outputs."""
     outputs = outputs[outputs["output"].isin(list(config.outputs))]
     wide = (outputs.drop_duplicates(["timestamp", "output"])
             .pivot(index="timestamp", columns="output", values="value").sort_index())
     rng = np.random.default_rng(truth.seed)
-    gaps = np.diff(wide.index.to_numpy()) != np.timedelta64(1, "h")
-    starts = np.flatnonzero(gaps) + 1
+    steps = np.diff(wide.index.to_numpy())
+    step = pd.Timedelta(np.median(steps)) if len(steps) else pd.Timedelta(hours=1)
+    starts = np.flatnonzero(steps != step.to_timedelta64()) + 1
     for output in wide.columns:
         noise = truth.noise.get(output) or default_noise(config.outputs[output].unit)
         wide[output] = add_noise(wide[output].to_numpy(), noise, rng, starts)
+        if noise.increment is not None:
+            wide[output] = metered(wide[output].to_numpy(), wide.index, noise.increment, step)
     wide.columns.name = None
     return wide
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -84,3 +85,19 @@ def test_prototype_and_baseline_run_their_own_controls(tmp_path):
     window = measured["timestamp"].isin(heating["timestamp"])
     # the baseline is another model of the same floor: the same order of heat
     assert 0.5 < measured.loc[window, "heating_kwh"].sum() / simulated < 2.0
+
+
+def test_meter_reads_whole_increments_and_resets_at_midnight():
+    from bpsflow.synth import metered
+
+    stamps = pd.date_range("2017-03-20 00:15", periods=2 * 96, freq="15min")
+    values = np.full(len(stamps), 0.3)                     # 0.3 kWh per quarter hour
+    read = metered(values, stamps, 1.0, pd.Timedelta(minutes=15))
+    assert set(np.round(read, 9)) <= {0.0, 1.0}            # whole increments only
+    first_day = (stamps - pd.Timedelta(minutes=15)).normalize() == stamps[0].normalize()
+    # 96 x 0.3 = 28.8 kWh a day: the meter shows 28, and starts again at midnight
+    assert read[first_day].sum() == pytest.approx(28.0)
+    assert read[~first_day].sum() == pytest.approx(28.0)
+    assert read[0] == 0.0 and read[3] == 1.0               # 0.3, 0.6, 0.9, 1.2 -> 0, 0, 0, 1
+    hourly = read.reshape(-1, 4).sum(axis=1)
+    assert set(np.round(hourly, 9)) <= {1.0, 2.0}          # hourly sums from stepped readings

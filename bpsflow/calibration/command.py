@@ -83,7 +83,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     from bpsflow.calibration import workflow
     from bpsflow.calibration.report import write
     from bpsflow.calibration.scenarios import write_comparison
-    from bpsflow.decision.workflow import config_fingerprint
+    from bpsflow.config import config_fingerprint
     from bpsflow.measured import plausibility_reference, read_measured
     from bpsflow.simulation.backend import choose_backend
 

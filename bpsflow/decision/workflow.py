@@ -22,7 +22,6 @@ against that draw's setpoint).
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +30,7 @@ import numpy as np
 import pandas as pd
 from rich.console import Console
 
-from bpsflow.config import Config, IdfTarget, Parameter
+from bpsflow.config import Config, IdfTarget, Parameter, config_fingerprint
 from bpsflow.decision.intervention import Intervention, load_intervention, week_dates
 from bpsflow.decision.outcomes import counted_hours, outcome_values
 from bpsflow.decision.risk import decision_risk, event_happens, underperformance_probability
@@ -39,21 +38,6 @@ from bpsflow.errors import BpsflowError
 
 DECISION_DIR = "decision"
 DECISION_FILE = "decision.json"
-
-
-def config_fingerprint(config: Config) -> str:
-    """A digest of what a calibration depends on: the model files, parameters, outputs and tests."""
-    files = [config.model.idf, *config.model.idf_objects]
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(Path(path).read_bytes())
-    spec = {"parameters": [p.model_dump(mode="json", exclude={"group", "description"})
-                           for p in config.parameters],
-            "outputs": {k: v.model_dump(mode="json") for k, v in config.outputs.items()},
-            "tests": [t.model_dump(mode="json") for t in config.model.tests],
-            "weather": Path(config.model.weather).name, "year": config.model.year}
-    digest.update(json.dumps(spec, sort_keys=True, default=str).encode())
-    return digest.hexdigest()[:16]
 
 
 @dataclass
