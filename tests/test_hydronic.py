@@ -101,3 +101,15 @@ def test_meter_reads_whole_increments_and_resets_at_midnight():
     assert read[0] == 0.0 and read[3] == 1.0               # 0.3, 0.6, 0.9, 1.2 -> 0, 0, 0, 1
     hourly = read.reshape(-1, 4).sum(axis=1)
     assert set(np.round(hourly, 9)) <= {1.0, 2.0}          # hourly sums from stepped readings
+
+
+def test_model_mode_heating_rows_are_kept_where_the_meter_reads():
+    """The tool knows no heating schedule of a model-mode test: its heating rows are paired
+    (only the idle rule drops rows), not dropped as 'system off'."""
+    from bpsflow.calibration.design import _aggregate
+
+    config = load_config(CONFIGS / "hydronic.yaml")
+    hours = pd.date_range("2017-02-20 01:00", periods=48, freq="h")
+    frame, _, _ = _aggregate(config, config.model.tests[0], "heating_kwh", hours,
+                             np.ones(48), np.ones((48, 2)), "hourly")
+    assert frame["on"].all()

@@ -319,7 +319,9 @@ def _aggregate(config: Config, test: Test, output: str, hours: pd.DatetimeIndex,
                observed: np.ndarray, ensemble: np.ndarray, resolution: str
                ) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
     heating, cooling = hourly_setpoints(config, hours)
-    system = system_of(config, output)
+    # a test on the model's own controls has no schedule the tool knows: only the idle
+    # rule (measured value near zero) drops its heating/cooling rows
+    system = None if test.mode == "model" else system_of(config, output)
     on = np.ones(len(hours), bool) if system is None else \
         (heating > HEATING_OFF_C) if system == "heating" else (cooling < COOLING_OFF_C)
     if resolution == "hourly":
