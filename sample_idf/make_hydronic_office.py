@@ -428,7 +428,7 @@ def plant(rooms: list[Room]) -> list[str]:
             65, -5, 30, 15, "HW Setpoint Nodes"),
         obj("NodeList", "HW Setpoint Nodes", "Boiler Outlet Node", "HW Supply Outlet Node"),
         obj("Pump:VariableSpeed", "HW Pump", "HW Supply Inlet Node", "HW Pump Outlet Node",
-            design_flow, 20000, 15, 0.9, 0.0, 0, 1, 0, 0, 0, "Intermittent"),
+            design_flow, 20000, design_flow * 20000 / 0.6, 0.9, 0.0, 0, 1, 0, 0, 0, "Intermittent"),
         obj("Boiler:HotWater", "Boiler", "NaturalGas", 60000, 0.9, "", "", design_flow,
             0, 1, 1, "Boiler Inlet Node", "Boiler Outlet Node", 95, "LeavingSetpointModulated"),
         obj("Pipe:Adiabatic", "HW Supply Bypass Pipe", "HW Supply Bypass Inlet", "HW Supply Bypass Outlet"),
