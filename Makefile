@@ -57,6 +57,7 @@ bench: $(STAMP)
 	$(PY) bench/diagnosis_bench.py --random 60 --nulls 40 --parallel $(JOBS)
 	$(PY) bench/diagnosis_bench.py --random 12 --nulls 0 --backends energyplus --jobs $(JOBS)
 	$(PY) bench/study_bench.py --jobs $(JOBS)   # about 30 min
+	$(PY) bench/hydronic_bench.py --demo   # about 25 min
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed

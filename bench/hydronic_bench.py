@@ -1,0 +1,97 @@
+"""Hydronic office case (seed chapter 4): EnergyPlus seconds per run, and the whole demo.
+
+* ``hydronic_energyplus_seconds_single_day`` / ``_whole_period``: one EnergyPlus run of the
+  prototype model over one day plus its warm-up day (the source's single-day design) and
+  over the whole period of ``configs/hydronic.yaml`` (6 weeks), median of 3, bare binary.
+* with ``--demo``: ``make hydronic-demo`` timed (``hydronic_demo_minutes``, goal <= 30 on
+  2 cores) and its results: pooled truth coverage of the 90 % intervals over the six
+  scenarios, the hourly scenarios' coverage, and each scenario's decision risks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from benchlib import record, scratch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def energyplus_seconds(first: str, last: str, repeats: int = 3) -> float:
+    from bpsflow.config import load_config
+    from bpsflow.simulation.energyplus.engine import find_energyplus
+
+    config = load_config(ROOT / "configs" / "hydronic.yaml")
+    binary = find_energyplus()
+    work = scratch("hydronic-")
+    (m1, d1), (m2, d2) = (map(int, first.split("-")), map(int, last.split("-")))
+    text = (ROOT / "sample_idf" / "hydronic_office.idf").read_text() + (
+        f"\nRunPeriod, rp, {m1}, {d1}, {config.model.year}, {m2}, {d2}, {config.model.year}, "
+        ", No, No, No, Yes, Yes;\nOutput:Variable, Boiler, Boiler Heating Energy, Hourly;\n"
+        "Output:Variable, Meeting Room, Zone Mean Air Temperature, Hourly;\n"
+        "Output:Meter, Office Electricity, Hourly;\nOutput:SQLite, Simple;\n")
+    idf = work / "model.idf"
+    idf.write_text(text)
+    seconds = []
+    for k in range(repeats):
+        started = time.perf_counter()
+        subprocess.run([str(binary), "-w", str(config.model.weather), "-d", str(work / f"run{k}"),
+                        str(idf)], check=True, capture_output=True)
+        seconds.append(time.perf_counter() - started)
+    return statistics.median(seconds)
+
+
+def demo() -> None:
+    started = time.perf_counter()
+    subprocess.run(["make", "hydronic-demo"], cwd=ROOT, check=True)
+    record_demo((time.perf_counter() - started) / 60)
+
+
+def record_demo(minutes: float) -> None:
+    """Record the demo's time and what its run directory holds."""
+    out = ROOT / "runs" / "hydronic_screened" / "calibration"
+    table = pd.read_csv(out / "scenarios.csv")
+    truth = [c for c in table.columns if c.startswith("truth_in_90:")]
+    covered = table[truth].sum(axis=1)
+    hourly = table["resolution"] == "hourly"
+    command = "python bench/hydronic_bench.py --demo"
+    record("hydronic_demo_minutes", minutes, "min", "<= 30 on 2 cores", command)
+    record("hydronic_truth_coverage_90", covered.sum() / (len(truth) * len(table)), "share",
+           "0.80-0.98 pooled over >= 3 truths", command, truths=1,
+           per_scenario=dict(zip(table["scenario"], covered.astype(int).tolist())),
+           parameters=len(truth))
+    record("hydronic_truth_coverage_90_hourly", covered[hourly].sum() / (len(truth) * hourly.sum()),
+           "share", "0.80-0.98", command, truths=1)
+    risks = {}
+    for folder in sorted((out / "scenarios").iterdir()):
+        decision = folder / "decision" / "supply_minus_5K" / "decision.json"
+        if decision.is_file():
+            rules = json.loads(decision.read_text())["rules"]
+            risks[folder.name] = {r["name"]: {"p": r["underperformance_probability"],
+                                              "risk": r["decision_risk"]} for r in rules}
+    record("hydronic_decision_risk_max", max(v["risk"] for s in risks.values() for v in s.values()),
+           "probability", "reported", command, per_scenario=risks)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--demo", action="store_true", help="also time make hydronic-demo")
+    args = parser.parse_args()
+    command = "python bench/hydronic_bench.py"
+    record("hydronic_energyplus_seconds_single_day", energyplus_seconds("03-19", "03-20"), "s",
+           "reported", command, note="one day plus its warm-up day")
+    record("hydronic_energyplus_seconds_whole_period", energyplus_seconds("02-13", "03-26"), "s",
+           "reported", command, note="the 6 weeks of configs/hydronic.yaml (42 days)")
+    if args.demo:
+        demo()
+
+
+if __name__ == "__main__":
+    main()
