@@ -79,12 +79,19 @@ def test_prototype_and_baseline_run_their_own_controls(tmp_path):
     result = runner.invoke(app, ["synth", str(CONFIGS / "hydronic_baseline.yaml"), "--truth",
                                  str(CONFIGS / "hydronic_truth.yaml"), "--run-dir", str(truth_dir)])
     assert result.exit_code == 0, result.output
-    measured = pd.read_csv(truth_dir / "truth" / "measured.csv", parse_dates=["timestamp"])
-    assert {"heating_kwh", "electricity_kwh", "meeting_room_air_temperature_c"} <= set(measured)
+    raw = pd.read_csv(truth_dir / "truth" / "measured.csv", parse_dates=["timestamp"])
+    assert {"heating_kwh", "electricity_kwh", "meeting_room_air_temperature_c"} <= set(raw)
+    # the baseline's meters report every 15 minutes; the heating meter in 0.5 kWh steps
+    assert (raw["timestamp"].diff().dropna() == pd.Timedelta(minutes=15)).mean() > 0.99
+    assert np.allclose(raw["heating_kwh"] / 0.5, np.round(raw["heating_kwh"] / 0.5))
+    from bpsflow.measured import read_measured
+
+    hourly = read_measured(truth_dir / "truth" / "measured.csv",
+                           load_config(CONFIGS / "hydronic.yaml")).frame
     simulated = heating.groupby("instance")["value"].sum().mean()
-    window = measured["timestamp"].isin(heating["timestamp"])
+    window = hourly.index.isin(heating["timestamp"])
     # the baseline is another model of the same floor: the same order of heat
-    assert 0.5 < measured.loc[window, "heating_kwh"].sum() / simulated < 2.0
+    assert 0.5 < hourly.loc[window, "heating_kwh"].sum() / simulated < 2.0
 
 
 def test_meter_reads_whole_increments_and_resets_at_midnight():
