@@ -136,3 +136,47 @@ def test_edits_are_clipped_at_their_minimum(hydronic):
     changed, added = intervention_config(hydronic, load_intervention(path, hydronic), path)
     assert sorted(added.values()) == [25.0, 60.0]     # 30 - 5 = 25 (the floor) and 65 - 5
     assert len(changed.parameters) == len(hydronic.parameters) + 2
+
+
+def test_calibration_from_another_config_is_refused(tmp_path, hydronic):
+    import json
+
+    from bpsflow.config import config_fingerprint
+    from bpsflow.decision.workflow import read_calibration
+
+    folder = tmp_path / "calibration"
+    folder.mkdir()
+    pd.DataFrame({"leakage_area": [1.0, 1.2]}).to_parquet(folder / "posterior.parquet")
+    record = {"scenario": {"name": "main"}, "parameters": [{"name": "leakage_area"}],
+              "config": {"source": "other.yaml", "fingerprint": "0123456789abcdef"}}
+    (folder / "calibration.json").write_text(json.dumps(record))
+    with pytest.raises(BpsflowError, match="another config"):
+        read_calibration(folder, hydronic)
+    record["config"]["fingerprint"] = config_fingerprint(hydronic)
+    record["parameters"] = [{"name": "south_wall_insulation_conductivity"}]
+    (folder / "calibration.json").write_text(json.dumps(record))
+    with pytest.raises(BpsflowError, match="does not have"):
+        read_calibration(folder, hydronic)
+    record["parameters"] = [{"name": "leakage_area"}]
+    (folder / "calibration.json").write_text(json.dumps(record))
+    assert read_calibration(folder, hydronic).parameters == ["leakage_area"]
+    (folder / "posterior.parquet").unlink()
+    with pytest.raises(BpsflowError, match="posterior"):
+        read_calibration(folder, hydronic)
+
+
+def test_decide_command_reports_bad_input_without_traceback(tmp_path):
+    from typer.testing import CliRunner
+
+    from bpsflow.cli import app
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((CONFIGS / "hydronic_intervention.yaml").read_text().replace(
+        "{outcome: discomfort_degree_hours, above: {factor: 1.0, offset: 0.5}}",
+        "{outcome: comfort, above: {factor: 1.0, offset: 0.5}}"))
+    result = CliRunner().invoke(app, ["decide", str(CONFIGS / "hydronic.yaml"), "--calibration",
+                                      str(tmp_path / "none"), "--intervention", str(bad),
+                                      "--run-dir", str(tmp_path / "run")])
+    assert result.exit_code == 2
+    assert "unknown outcome 'comfort'" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "run" / "decision").exists()
