@@ -1,6 +1,6 @@
 """The intervention file of ``bpsflow decide``: the change, the test week, outcomes and rules.
 
-Example (``configs/hydronic_intervention.yaml``, seed §4.4.2)::
+Example (seed §4.4.2; ``configs/`` ships one)::
 
     name: supply_minus_5K
     change:
@@ -14,9 +14,9 @@ Example (``configs/hydronic_intervention.yaml``, seed §4.4.2)::
     outcomes:
     - {name: week_heating_kwh, output: heating_kwh, statistic: total}
     - name: discomfort_degree_hours
-      output: meeting_room_air_temperature_c
+      output: zone_air_temperature_c
       statistic: discomfort
-      setpoint: {parameter: setpoint_meeting_room}
+      setpoint: {parameter: zone_setpoint}
       hours: {days: weekdays, start_hour: 6, end_hour: 19}
     rules:
     - name: D1

@@ -36,8 +36,8 @@ def matches_name(pattern: str, name: str) -> bool:
     """Whether a target's object name selects ``name`` (no case).
 
     ``*`` selects every object; a name with ``*`` or ``?`` is a shell-style
-    pattern (``Cellular Office*`` selects ``Cellular Office`` and
-    ``Cellular Office 07``); any other name selects that object alone.
+    pattern (``Office*`` selects ``Office`` and ``Office 07``); any other
+    name selects that object alone.
     """
     if pattern == "*":
         return True
