@@ -125,6 +125,8 @@ EngineOption = typer.Option(None, "--engine", help="Override execution.engine: l
 SchedulerOption = typer.Option(None, "--scheduler", help="Override execution.scheduler: a Dask "
                                                          "scheduler address (selects --engine dask).")
 
+# Every command takes it, so that a script can pass one flag to all of them; those that
+# show no progress bar accept it and do nothing more.
 NoProgressOption = typer.Option(False, "--no-progress", help="No progress bars.")
 AllowImplausibleOption = typer.Option(
     False, "--allow-implausible", help="Accept measured values far outside their plausible "
@@ -172,7 +174,8 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
            seed: int | None = typer.Option(None, help="Override design.seed."),
            force: bool = typer.Option(False, help="Draw a new design in a run directory that "
                                                   "holds results of another one; the old "
-                                                  "results are moved to RUN_DIR/previous/.")) -> None:
+                                                  "results are moved to RUN_DIR/previous/."),
+           no_progress: bool = NoProgressOption) -> None:
     """Draw the design (LHS or Morris) and write samples.parquet."""
     cfg = _load(config, run_dir, {"design.samples": ("--samples", samples),
                                   "design.seed": ("--seed", seed)})
@@ -241,7 +244,8 @@ def _sample(cfg) -> Path:
 @app.command()
 @_friendly
 def check(config: Path = ConfigArg,
-          backend: str | None = BackendOption) -> None:
+          backend: str | None = BackendOption,
+          no_progress: bool = NoProgressOption) -> None:
     """Validate the config, every IDF target and the thermostats against the model; nothing runs."""
     from bpsflow.simulation.backend import choose_backend
 
@@ -271,7 +275,8 @@ def _set_backend(cfg, backend: str | None) -> None:
 def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
               instance: list[int] = typer.Option([0], "--instance", "-i",
                                                  help="Instance(s) to write."),
-              out: Path | None = typer.Option(None, help="Where to write (default RUN_DIR/inspect).")) -> None:
+              out: Path | None = typer.Option(None, help="Where to write (default RUN_DIR/inspect)."),
+              no_progress: bool = NoProgressOption) -> None:
     """Write instance inputs (IDF per period, weather, boundary data) without running them."""
     from bpsflow.design_record import require_same_design
     from bpsflow.sampling import read_samples
@@ -364,7 +369,8 @@ def synth(config: Path = ConfigArg,
           scheduler: str | None = SchedulerOption,
           detailed: bool = typer.Option(False, "--detailed", help="Also write detailed "
                                         "measurements (detailed.csv, sensor_calibration.csv, "
-                                        "detailed.json; seed §3.4.3-3.5).")) -> None:
+                                        "detailed.json; seed §3.4.3-3.5)."),
+          no_progress: bool = NoProgressOption) -> None:
     """Run a truth instance and write synthetic measurements (measured.csv)."""
     from bpsflow.synth import load_truth, synthesize
 
@@ -391,7 +397,8 @@ def validate(config: Path = ConfigArg,
                                                     "treated as invalid predictions (e.g. the baseline)."),
              q: float | None = typer.Option(None, help="Override validation.q."),
              allow_implausible: bool = AllowImplausibleOption,
-             run_dir: Path | None = RunDirOption) -> None:
+             run_dir: Path | None = RunDirOption,
+             no_progress: bool = NoProgressOption) -> None:
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
     from bpsflow.design_record import require_same_design
     from bpsflow.plots import plot_bands
@@ -573,7 +580,8 @@ def refine(config: Path = ConfigArg,
            refined_config: Path | None = typer.Option(
                None, "--refined-config", help="Where to write the refined config (default "
                                               "OUT/refined.yaml); its data files go beside it."),
-           run_dir: Path | None = RunDirOption) -> None:
+           run_dir: Path | None = RunDirOption,
+           no_progress: bool = NoProgressOption) -> None:
     """Refine input distributions from detailed measurements (seed §3.4.3-3.5)."""
     from bpsflow.refine import interval_table, write_refinement
     from bpsflow.refine import refine as run_refine
