@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bpsflow.config import Config, Parameter
+from bpsflow.config import Config, Parameter, test_dates
 from bpsflow.diagnosis import comparison, crossval, structure
 from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (
@@ -207,6 +207,16 @@ def prepare(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings)
     """Select the output, split calibration / held-out days, derive the drivers."""
     output = choose_output(config, measured, settings)
     series = measured[output].dropna()
+    # warm-up days are simulated, not evaluated (as in validate and calibrate): the model's
+    # start from its initial state is no evidence of what it lacks
+    stamps = pd.DatetimeIndex(series.index)
+    evaluated = np.zeros(len(stamps), bool)
+    for test in config.model.tests:
+        if output in test.outputs:
+            _, first, last = test_dates(test, config.model.year)
+            evaluated |= ((stamps > pd.Timestamp(first))
+                          & (stamps <= pd.Timestamp(last) + pd.Timedelta(days=1)))
+    series = series[evaluated]
     timestamps = pd.DatetimeIndex(series.index)
     days = (timestamps - pd.Timedelta(hours=1)).normalize()
     last_days = np.sort(days.unique())[-settings.holdout_days:]
