@@ -120,3 +120,21 @@ def test_model_mode_heating_rows_are_kept_where_the_meter_reads():
     frame, _, _ = _aggregate(config, config.model.tests[0], "heating_kwh", hours,
                              np.ones(48), np.ones((48, 2)), "hourly")
     assert frame["on"].all()
+
+
+def test_diagnosis_leaves_warm_up_days_out():
+    """Warm-up days are simulated, not evaluated: diagnose fits the evaluated hours only."""
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+    from bpsflow.diagnosis.workflow import prepare
+
+    config = load_config(CONFIGS / "hydronic.yaml")
+    hours = pd.date_range("2017-02-13 01:00", "2017-03-27 00:00", freq="h")
+    rng = np.random.default_rng(0)
+    measured = pd.DataFrame({"heating_kwh": rng.random(len(hours)),
+                             "electricity_kwh": rng.random(len(hours)),
+                             "meeting_room_air_temperature_c": 20 + rng.random(len(hours))},
+                            index=pd.DatetimeIndex(hours, name="timestamp"))
+    data = prepare(config, measured, DiagnosisSettings())
+    assert data.timestamps[0] == pd.Timestamp("2017-02-20 01:00")      # after 7 warm-up days
+    assert data.timestamps[-1] == pd.Timestamp("2017-03-27 00:00")
+    assert len(data.timestamps) == 35 * 24
