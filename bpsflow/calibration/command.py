@@ -127,14 +127,15 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
                   allow_implausible=allow_implausible)
     truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None
     outcome = Outcome()
+    provenance = {"measured": str(Path(measured_path).resolve()),
+                  "config": {"source": str(config.source),
+                             "fingerprint": config_fingerprint(config)}}
     for scenario, _ in scenarios:
         folder = out / SCENARIOS_DIR / scenario.name if all_scenarios else out
         run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
                                           measured_path, method, folder, jobs, truth,
                                           show_progress)
-        paths = write(run, folder, provenance={
-            "measured": str(Path(measured_path).resolve()),
-            "config": {"source": str(config.source), "fingerprint": config_fingerprint(config)}})
+        paths = write(run, folder, provenance=provenance)
         outcome.runs.append(run)
         outcome.paths[scenario.name] = paths
         print_run(run, console)

@@ -45,6 +45,11 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+def _exactly_one(model: BaseModel, names: tuple[str, ...], message: str) -> None:
+    if sum(getattr(model, name) is not None for name in names) != 1:
+        raise ValueError(message)
+
+
 class Edit(_Strict):
     """A change to IDF fields: ``set`` a value, or ``add`` to / ``multiply`` the model's value.
 
@@ -61,9 +66,7 @@ class Edit(_Strict):
 
     @model_validator(mode="after")
     def _one_change(self) -> Edit:
-        given = [k for k in ("set", "add", "multiply") if getattr(self, k) is not None]
-        if len(given) != 1:
-            raise ValueError("give exactly one of set, add or multiply")
+        _exactly_one(self, ("set", "add", "multiply"), "give exactly one of set, add or multiply")
         return self
 
 
@@ -101,8 +104,7 @@ class Setpoint(_Strict):
 
     @model_validator(mode="after")
     def _one(self) -> Setpoint:
-        if (self.value_c is None) == (self.parameter is None):
-            raise ValueError("give either value_c or parameter")
+        _exactly_one(self, ("value_c", "parameter"), "give either value_c or parameter")
         return self
 
 
@@ -143,8 +145,7 @@ class Event(_Strict):
 
     @model_validator(mode="after")
     def _one(self) -> Event:
-        if (self.above is None) == (self.below is None):
-            raise ValueError("give either above or below")
+        _exactly_one(self, ("above", "below"), "give either above or below")
         return self
 
 

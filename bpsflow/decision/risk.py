@@ -49,9 +49,15 @@ def decision_risk(p: float | np.ndarray, threshold: float = 0.5) -> float | np.n
     return float(risk) if risk.ndim == 0 else risk
 
 
+def permutation_orders(permutations: int, length: int, rng: np.random.Generator) -> np.ndarray:
+    """``permutations`` random orders of ``length`` positions, shape (permutations, length)."""
+    return np.argsort(rng.random((permutations, length)), axis=1)
+
+
 def permuted_error_outcomes(prediction: np.ndarray, errors: np.ndarray,
                             outcome: Callable[[np.ndarray], np.ndarray], permutations: int,
-                            rng: np.random.Generator) -> np.ndarray:
+                            rng: np.random.Generator, order: np.ndarray | None = None
+                            ) -> np.ndarray:
     """Outcomes of one posterior draw with model bias added by permuting its test errors.
 
     Parameters
@@ -67,6 +73,9 @@ def permuted_error_outcomes(prediction: np.ndarray, errors: np.ndarray,
         How many random permutations of ``errors`` to add.
     rng : numpy.random.Generator
         Source of the permutations (explicit, for reproducible results).
+    order : ndarray, shape (permutations, n), optional
+        The permutations to use instead of drawing them (so that several
+        outputs of one draw share theirs, :func:`permutation_orders`).
 
     Returns
     -------
@@ -83,7 +92,8 @@ def permuted_error_outcomes(prediction: np.ndarray, errors: np.ndarray,
     errors = np.asarray(errors, dtype=float)
     if prediction.shape != errors.shape or prediction.ndim != 1:
         raise ValueError("prediction and errors must be 1-D series of one length")
-    order = np.argsort(rng.random((permutations, errors.size)), axis=1)
+    if order is None:
+        order = permutation_orders(permutations, errors.size, rng)
     return np.asarray(outcome(prediction[None, :] + errors[order]), dtype=float)
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,13 @@ from rich.console import Console
 from bpsflow.config import Config, IdfTarget, Parameter, config_fingerprint
 from bpsflow.decision.intervention import Intervention, load_intervention, week_dates
 from bpsflow.decision.outcomes import counted_hours, outcome_values
-from bpsflow.decision.risk import decision_risk, event_happens, underperformance_probability
+from bpsflow.decision.risk import (
+    decision_risk,
+    event_happens,
+    permutation_orders,
+    permuted_error_outcomes,
+    underperformance_probability,
+)
 from bpsflow.errors import BpsflowError
 
 DECISION_DIR = "decision"
@@ -98,6 +105,7 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
     from bpsflow.config import with_overlay
     from bpsflow.distributions import Constant
     from bpsflow.simulation.target_bounds import targeted_fields
+    from bpsflow.simulation.targets import targets_field
 
     changed = with_overlay(config, intervention.change.overlay, source,
                            where="change.overlay") if intervention.change.overlay else \
@@ -115,14 +123,14 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
         if not fields:
             raise BpsflowError(f"change.edits[{i}].target: no {edit.target.object} named "
                                f"'{edit.target.name}' in the model", source=source)
+        clash = [p.name for p in changed.parameters for t in p.targets
+                 if isinstance(t, IdfTarget)
+                 and targets_field(t, edit.target.object, edit.target.field)]
+        if clash:
+            raise BpsflowError(f"change.edits[{i}]: parameter {clash[0]} already sets "
+                               f"{edit.target.object} {edit.target.field}; change it "
+                               f"through change.overlay instead", source=source)
         for found in fields:
-            clash = [p.name for p in changed.parameters for t in p.targets
-                     if isinstance(t, IdfTarget) and t.object.upper() == edit.target.object.upper()
-                     and t.field.lower() == edit.target.field.lower()]
-            if clash:
-                raise BpsflowError(f"change.edits[{i}]: parameter {clash[0]} already sets "
-                                   f"{edit.target.object} {edit.target.field}; change it "
-                                   f"through change.overlay instead", source=source)
             if found.nominal is None:
                 raise BpsflowError(f"change.edits[{i}]: {found.obj.where} has no number in "
                                    f"{edit.target.field}", source=source)
@@ -225,14 +233,16 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
     setpoints = {o.name: _setpoints(o, config, samples) for o in intervention.outcomes}
     masks = {o.name: counted_hours(hour_ends, o.hours) for o in intervention.outcomes}
     for j in range(draws):
-        order = np.argsort(rng.random((perms, len(hour_ends))), axis=1)
+        # one permutation per sample for every output of the draw: their timing stays joint
+        order = permutation_orders(perms, len(hour_ends), rng)
         for outcome in intervention.outcomes:
-            errors = observed[outcome.output] - predicted_as_is[outcome.output][j]
-            series = predicted_change[outcome.output][j][None, :] + errors[order]
             per_draw = setpoints[outcome.name]
             setpoint = None if per_draw is None else per_draw[j]
-            projected[outcome.name][j] = outcome_values(outcome, series, masks[outcome.name],
-                                                        setpoint)
+            projected[outcome.name][j] = permuted_error_outcomes(
+                predicted_change[outcome.output][j],
+                observed[outcome.output] - predicted_as_is[outcome.output][j],
+                partial(outcome_values, outcome, mask=masks[outcome.name], setpoint_c=setpoint),
+                perms, rng, order=order)
             reference[outcome.name][j] = outcome_values(
                 outcome, observed[outcome.output], masks[outcome.name], setpoint)[0]
     rules = []
