@@ -370,18 +370,26 @@ def synth(config: Path = ConfigArg,
           detailed: bool = typer.Option(False, "--detailed", help="Also write detailed "
                                         "measurements (detailed.csv, sensor_calibration.csv, "
                                         "detailed.json; seed §3.4.3-3.5)."),
+          equivalent_for: Path | None = typer.Option(
+              None, "--equivalent-for", help="Config of a simpler model (e.g. prototype rooms) "
+              "to be calibrated on these data: also write truth_equivalent.json, the true "
+              "values that model can recover (room-weighted means of the fields)."),
           no_progress: bool = NoProgressOption) -> None:
     """Run a truth instance and write synthetic measurements (measured.csv)."""
-    from bpsflow.synth import load_truth, synthesize
+    from bpsflow.synth import load_truth, synthesize, write_equivalent_truth
 
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     if backend is not None:
         cfg.model.backend = backend
     spec = load_truth(truth, cfg)
+    # the other config is read before anything runs: a bad one loses nothing
+    simpler = _load(equivalent_for, None) if equivalent_for is not None else None
     rd = _lock(cfg)
     out = out or rd / "truth"
     path = synthesize(cfg, spec, out.resolve(), detailed=detailed)
     console.print(f"wrote {path}")
+    if simpler is not None:
+        console.print(f"wrote {write_equivalent_truth(cfg, simpler, out.resolve())}")
     if detailed:
         from bpsflow.detailed import CALIBRATION_FILE, DETAILED_FILE, METADATA_FILE
 

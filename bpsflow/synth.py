@@ -15,6 +15,7 @@ true values behind them in the ``detailed`` block of ``truth.json``).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Literal
 
@@ -30,6 +31,7 @@ from bpsflow.simulation.target_bounds import check_sample_values
 
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
+EQUIVALENT_TRUTH_FILE = "truth_equivalent.json"
 
 
 class Noise(BaseModel):
@@ -251,6 +253,24 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
         record["detailed"] = write_detailed_measurements(config, sample, outputs, truth.seed,
                                                          out_dir)
     write_json(out_dir / TRUTH_FILE, record)
+    return path
+
+
+def write_equivalent_truth(config: Config, simpler: Config, out_dir: Path) -> Path:
+    """Write ``truth_equivalent.json``: the truth's values as ``simpler``'s model can hold them.
+
+    See :mod:`bpsflow.equivalent_truth`; pass the file to ``calibrate --truth``
+    to judge a prototype-room calibration against what it can recover.
+    """
+    from bpsflow.equivalent_truth import equivalent_values
+
+    truth_path = out_dir / TRUTH_FILE
+    values = json.loads(truth_path.read_text(encoding="utf-8"))["values"]
+    found = equivalent_values(config, values, simpler)
+    path = out_dir / EQUIVALENT_TRUTH_FILE
+    write_json(path, {"values": found.values, "how": found.how,
+                      "truth": str(truth_path), "truth_config": str(config.source),
+                      "config": str(simpler.source)})
     return path
 
 

@@ -138,3 +138,47 @@ def test_diagnosis_leaves_warm_up_days_out():
     assert data.timestamps[0] == pd.Timestamp("2017-02-20 01:00")      # after 7 warm-up days
     assert data.timestamps[-1] == pd.Timestamp("2017-03-27 00:00")
     assert len(data.timestamps) == 35 * 24
+
+
+def _field_values(idf: Path, object_type: str, name_prefix: str, position: int,
+                  contains: str = "") -> list[float]:
+    """A field of every object whose name starts with ``name_prefix`` (and holds
+    ``contains``), read by plain text."""
+    body = "\n".join(line.split("!", 1)[0] for line in idf.read_text().splitlines())
+    values = []
+    for chunk in body.split(";"):
+        fields = [f.strip() for f in chunk.split(",")]
+        if fields[0].upper() == object_type.upper() and fields[1].startswith(name_prefix) \
+                and contains in fields[1]:
+            values.append(float(fields[position]))
+    return values
+
+
+def test_equivalent_truth_of_the_prototype_model():
+    """The prototype office (multiplier 16) must carry the mean of the 16 rooms it stands for."""
+    from bpsflow.equivalent_truth import equivalent_values
+
+    baseline = load_config(CONFIGS / "hydronic_baseline.yaml")
+    prototype = load_config(CONFIGS / "hydronic.yaml")
+    idf = Path(baseline.model.idf)
+    truth = {"lighting_power_cellular_office": 1.1, "setpoint_cellular_office": 0.6,
+             "glazing_u_value": 1.15, "radiator_capacity": 0.95}
+    found = equivalent_values(baseline, truth, prototype)
+    # Lights: type, Name, Zone, Schedule, Method, Level, Watts/Area (position 6)
+    rooms = _field_values(idf, "Lights", "Cellular Office ", 6)
+    (own,) = _field_values(Path(prototype.model.idf), "Lights", "Cellular Office", 6)
+    assert len(rooms) == 16
+    assert found.values["lighting_power_cellular_office"] == pytest.approx(
+        1.1 * np.mean(rooms) / own, rel=1e-9)
+    # each room's own setpoint schedule; the shared one nothing uses counts for no room
+    setpoints = _field_values(idf, "Schedule:Constant", "Cellular Office ", 3, contains=" Own ")
+    (nominal,) = _field_values(Path(prototype.model.idf), "Schedule:Constant",
+                               "Cellular Office Heating Setpoint", 3)
+    assert len(setpoints) == 16
+    assert found.values["setpoint_cellular_office"] == pytest.approx(
+        np.mean(setpoints) + 0.6 - nominal, abs=1e-9)
+    assert abs(found.values["setpoint_cellular_office"] - 0.6) > 0.05   # the rooms do move it
+    assert found.values["glazing_u_value"] == pytest.approx(1.15)       # one shared material
+    # the prototype's radiator is sized for its multiplied zone: no like-for-like equivalent
+    assert found.values["radiator_capacity"] == 0.95
+    assert "truth kept" in found.how["radiator_capacity"]
