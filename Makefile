@@ -95,9 +95,9 @@ calibrate-demo: $(STAMP)
 HYDRONIC_MEASURED = runs/hydronic_baseline/truth/measured.csv
 hydronic-demo: $(STAMP)
 	$(BPS) check configs/hydronic.yaml
-	$(BPS) synth configs/hydronic_baseline.yaml --truth configs/hydronic_truth.yaml
-	$(BPS) sensitivity configs/hydronic.yaml --measured $(HYDRONIC_MEASURED) --response absolute --screen 3 --screen-out runs/hydronic_screened.yaml --jobs $(JOBS) --no-progress
-	$(BPS) calibrate runs/hydronic_screened.yaml --measured $(HYDRONIC_MEASURED) --truth runs/hydronic_baseline/truth/truth.json --scenarios --jobs $(JOBS) --no-progress --allow-unconverged
+	$(BPS) synth configs/hydronic_baseline.yaml --truth configs/hydronic_truth.yaml --equivalent-for configs/hydronic.yaml
+	$(BPS) sensitivity configs/hydronic.yaml --measured $(HYDRONIC_MEASURED) --response absolute --screen 4 --screen-out runs/hydronic_screened.yaml --jobs $(JOBS) --no-progress
+	$(BPS) calibrate runs/hydronic_screened.yaml --measured $(HYDRONIC_MEASURED) --truth runs/hydronic_baseline/truth/truth_equivalent.json --scenarios --jobs $(JOBS) --no-progress --allow-unconverged
 	$(BPS) decide runs/hydronic_screened.yaml --calibration runs/hydronic_screened/calibration --intervention configs/hydronic_intervention.yaml --scenarios --jobs $(JOBS) --no-progress
 	@echo "results: runs/hydronic_screened/calibration/ (scenarios.csv, scenarios/<name>/, decision/)"
 
