@@ -401,3 +401,39 @@ def test_hourly_coverage_holds_under_a_known_model_form_error():
     assert covered["with"] / total >= 0.75, covered
     assert stats.binomtest(covered["with"], total, 0.9).pvalue > 0.01, covered
     assert covered["without"] / total <= 0.5, covered
+
+
+def test_per_output_noise_is_the_gaussian_with_each_rows_own_error():
+    """With ``noise_per_output`` each observation's variance carries its own output's σ_ε:
+    the model's log density equals a hand-built Gaussian (exact likelihood)."""
+    from numpyro.infer.util import log_density
+
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=10)
+    obs_rows = np.arange(10)
+    groups = np.array([0, 1] * 5)
+    rng = np.random.default_rng(3)
+    y = rng.normal(size=10)
+    settings = BayesSettings(noise_per_output=True, likelihood="exact")
+    data = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1), settings,
+                          obs_outputs=groups)
+    assert data.n_noise == 2
+    point = {"z": np.array([0.3]), "log_discrepancy_std": np.log(0.2),
+             "log_discrepancy_lengthscale": np.array([0.1]),
+             "log_noise_std": np.log(np.array([0.05, 0.4]))}
+    model = bayes.make_model(False, data.priors, False, n_noise=2)
+    value, _ = log_density(model, (bayes.model_arrays(data),), {}, point)
+    # the same by hand: emulator moments at θ, δ's kernel, each row's own noise, and the priors
+    t = standardise_unit(special.ndtr(point["z"]))
+    mean = emulator.grid.predict_mean(t[None, :])[0, obs_rows]
+    cov = emulator.grid.predict_cov(t)[np.ix_(obs_rows, obs_rows)]
+    xs = emulator.grid.x[obs_rows]
+    d2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(-1)
+    cov = cov + 0.2 ** 2 * np.exp(-0.5 * d2 / np.exp(0.1) ** 2) \
+        + np.diag(np.array([0.05, 0.4])[groups] ** 2 + 1e-8)
+    expected = stats.multivariate_normal(mean, cov).logpdf(y)
+    priors = data.priors
+    expected += stats.norm(0, 1).logpdf(0.3)
+    expected += stats.norm(*priors["log_discrepancy_std"]).logpdf(np.log(0.2))
+    expected += stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf(0.1)
+    expected += stats.norm(*priors["log_noise_std"]).logpdf(np.log([0.05, 0.4])).sum()
+    assert float(value) == pytest.approx(expected, rel=1e-6)

@@ -98,14 +98,19 @@ class KohData:
     lowrank: bool = False
     x_inducing: np.ndarray | None = None   # (m, d_x) inducing inputs of δ (low-rank likelihood)
     extra_variance: np.ndarray | None = None  # (n,) known error variance (emulator error)
+    noise_index: np.ndarray | None = None     # (n,) each observation's σ_ε (per-output noise)
+    n_noise: int = 1                          # how many σ_ε: 1 shared, else one per output
 
 
 def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
-             settings: BayesSettings, extra_variance: np.ndarray | None = None) -> KohData:
+             settings: BayesSettings, extra_variance: np.ndarray | None = None,
+             obs_outputs: np.ndarray | None = None) -> KohData:
     """Assemble the likelihood's arrays from the emulator and the observation rows.
 
     ``extra_variance`` (per observation, standardised) is a known error
-    variance added to σ_ε² (the emulator's hold-out error).
+    variance added to σ_ε² (the emulator's hold-out error). ``obs_outputs``
+    (per observation, the output's position) gives each output its own σ_ε
+    when ``settings.noise_per_output`` is set.
     """
     active = np.asarray(active, dtype=int)
     screened = np.setdiff1d(np.arange(grid.t.shape[1]), active)
@@ -131,7 +136,15 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
                    x_obs=x_obs, active=active, n_parameters=grid.t.shape[1],
                    ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing,
                    extra_variance=None if extra_variance is None
-                   else np.asarray(extra_variance, dtype=float))
+                   else np.asarray(extra_variance, dtype=float),
+                   **_noise_groups(settings, obs_outputs, len(obs_rows)))
+
+
+def _noise_groups(settings: BayesSettings, obs_outputs: np.ndarray | None, n: int) -> dict:
+    if not settings.noise_per_output or obs_outputs is None:
+        return {"noise_index": np.zeros(n, dtype=int), "n_noise": 1}
+    codes = np.asarray(obs_outputs, dtype=int)
+    return {"noise_index": codes, "n_noise": int(codes.max()) + 1}
 
 
 def inducing_inputs(x: np.ndarray, count: int, random_state: int) -> np.ndarray:
@@ -261,12 +274,14 @@ def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, 
     return -0.5 * (quad + logdet + residual.shape[0] * jnp.log(2 * jnp.pi))
 
 
-def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool = False):
+def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool = False,
+               n_noise: int = 1):
     """The NumPyro model of seed eq. 19–22 (see the module docstring).
 
-    ``ard`` and the priors are fixed in the closure; the arrays (the data and
-    the factorised simulator block) are the model's argument, so JAX
-    compiles once for any data of the same shape.
+    ``ard``, the priors and the number of σ_ε (``n_noise``: 1 shared, or one
+    per output) are fixed in the closure; the arrays (the data and the
+    factorised simulator block) are the model's argument, so JAX compiles
+    once for any data of the same shape.
     """
     def koh_model(d: dict) -> None:
         import jax.numpy as jnp
@@ -282,18 +297,24 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
         log_ls = numpyro.sample("log_discrepancy_lengthscale",
                                 dist.Normal(m, s).expand([n_ls]).to_event(1))
         m, s = priors["log_noise_std"]
-        log_sd_eps = numpyro.sample("log_noise_std", dist.Normal(m, s))
+        if n_noise == 1:
+            log_sd_eps = numpyro.sample("log_noise_std", dist.Normal(m, s))
+            noise_variance = jnp.exp(2 * log_sd_eps)
+        else:
+            log_sd_eps = numpyro.sample("log_noise_std",
+                                        dist.Normal(m, s).expand([n_noise]).to_event(1))
+            noise_variance = jnp.exp(2 * log_sd_eps)[d["noise_index"]]
         if lowrank:
             mean, variance = _emulator_moments(z, d, full=False)
             numpyro.factor("y", lowrank_log_density(
-                d["y"] - mean, variance + jnp.exp(2 * log_sd_eps) + d["extra_variance"],
+                d["y"] - mean, variance + noise_variance + d["extra_variance"],
                 jnp.exp(log_sd_delta), log_ls, d, ard))
             return
         mean, cov = _emulator_moments(z, d)
         n = d["y"].shape[0]
         total = (cov + jnp.exp(2 * log_sd_delta) * _discrepancy_kernel(log_ls, d, ard)
                  + jnp.diag(d["extra_variance"])
-                 + (jnp.exp(2 * log_sd_eps) + _JITTER) * jnp.eye(n))
+                 + jnp.diag(noise_variance + _JITTER))
         numpyro.factor("y", gaussian_log_density(total, d["y"] - mean))
 
     return koh_model
@@ -314,7 +335,9 @@ def model_arrays(data: KohData) -> dict:
             "log_base": data.log_base, "x_obs": x, "x_sqdist": x_sqdist,
             "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1])),
             "extra_variance": np.zeros(len(data.y)) if data.extra_variance is None
-            else data.extra_variance}
+            else data.extra_variance,
+            "noise_index": np.zeros(len(data.y), dtype=int) if data.noise_index is None
+            else data.noise_index}
 
 
 # ---------------------------------------------------------------------------
@@ -356,7 +379,7 @@ def initial_values(data: KohData, z_start: np.ndarray | None, chains: int,
     n_ls = data.x_obs.shape[1] if data.ard else 1
     out = {"z": centre[None, :] + spread * rng.standard_normal((chains, k))}
     for name, size in (("log_discrepancy_std", None), ("log_discrepancy_lengthscale", n_ls),
-                       ("log_noise_std", None)):
+                       ("log_noise_std", None if data.n_noise == 1 else data.n_noise)):
         mean, sd = data.priors[name]
         shape = (chains,) if size is None else (chains, size)
         out[name] = mean + spread * sd * rng.standard_normal(shape)
@@ -390,7 +413,7 @@ def laplace(data: KohData, start: dict[str, np.ndarray]) -> Laplace:
 
     started = time.perf_counter()
     arrays = model_arrays(data)
-    model = make_model(data.ard, data.priors, data.lowrank)
+    model = make_model(data.ard, data.priors, data.lowrank, data.n_noise)
     flat0, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
 
     def energy(flat):
@@ -477,7 +500,7 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
         size = min(group, chains - first)
         part_settings = settings.model_copy(update={"chains": size})
         mcmc = _mcmc(data.ard, priors, data.lowrank, part_settings,
-                     method if size > 1 else "sequential", progress, mass)
+                     method if size > 1 else "sequential", progress, mass, data.n_noise)
         part_init = None if init is None else {k: np.asarray(v)[first:first + size]
                                                for k, v in init.items()}
         if part_init is not None and size == 1:   # NumPyro takes one chain's start unbatched
@@ -543,7 +566,7 @@ _JIT_MODEL_ARGS = True
 
 
 def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, method: str,
-          progress: bool, inverse_mass_matrix: np.ndarray | None):
+          progress: bool, inverse_mass_matrix: np.ndarray | None, n_noise: int = 1):
     """A NumPyro MCMC object; reused for the same model and settings without a mass matrix.
 
     The model's arrays are arguments (``jit_model_args``), so a reused object
@@ -553,10 +576,11 @@ def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, meth
     from numpyro.infer import MCMC, NUTS
 
     key = (ard, priors, lowrank, settings.chains, settings.warmup, settings.samples,
-           settings.target_accept, settings.dense_mass, settings.max_tree_depth, method, progress)
+           settings.target_accept, settings.dense_mass, settings.max_tree_depth, method, progress,
+           n_noise)
     if inverse_mass_matrix is None and key in _MCMC_CACHE:
         return _MCMC_CACHE[key]
-    kernel = NUTS(make_model(ard, dict(priors), lowrank), target_accept_prob=settings.target_accept,
+    kernel = NUTS(make_model(ard, dict(priors), lowrank, n_noise), target_accept_prob=settings.target_accept,
                   dense_mass=settings.dense_mass, max_tree_depth=settings.max_tree_depth,
                   inverse_mass_matrix=inverse_mass_matrix)
     mcmc = MCMC(kernel, num_warmup=max(settings.warmup, 1), num_samples=settings.samples,
@@ -716,7 +740,7 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
                y_obs: np.ndarray, unit: np.ndarray, log_sd_delta: np.ndarray,
                log_lengthscale: np.ndarray, log_sd_eps: np.ndarray, ard: bool,
                x_inducing: np.ndarray | None = None, extra_variance: np.ndarray | None = None,
-               random_state: int = 0) -> Predictive:
+               random_state: int = 0, noise_index: np.ndarray | None = None) -> Predictive:
     """KOH posterior predictive of new observations at ``target_rows`` (standardised).
 
     For each draw: the Gaussian conditional of ``y(target)`` (emulator +
@@ -726,7 +750,9 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
     With ``x_inducing`` (the low-rank likelihood) δ's covariance is the same
     FITC approximation and the emulator keeps only its variances.
     ``extra_variance`` (per grid row, standardised) is the known error
-    variance of the likelihood (the emulator's hold-out error).
+    variance of the likelihood (the emulator's hold-out error). With one σ_ε
+    per output, ``log_sd_eps`` has a column per output and ``noise_index``
+    (per grid row) says which is the row's.
     """
     rng = np.random.default_rng(random_state)
     rows = np.concatenate([obs_rows, target_rows])
@@ -748,7 +774,10 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
             k_delta = np.exp(2 * log_sd_delta[i]) * (
                 nystrom + np.diag(np.clip(1.0 - np.diag(nystrom), 0.0, None)))
         extra = np.zeros(len(rows)) if extra_variance is None else extra_variance[rows]
-        noise = np.diag(np.exp(2 * log_sd_eps[i]) + _JITTER + extra)
+        sd_eps = np.atleast_1d(log_sd_eps[i])
+        own = sd_eps[noise_index[rows]] if noise_index is not None and len(sd_eps) > 1 \
+            else sd_eps[0]
+        noise = np.diag(np.exp(2 * own) + _JITTER + extra)
         total = cov_eta + k_delta + noise
         chol = np.linalg.cholesky(total[:n_obs, :n_obs])
         resid = np.linalg.solve(chol.T, np.linalg.solve(chol, y_obs - mean_all[i, :n_obs]))

@@ -80,8 +80,10 @@ def parameter_table(run: CalibrationRun) -> list[dict]:
 
 
 def _per_output_scale(run: CalibrationRun, values: np.ndarray) -> dict[str, dict]:
+    """Standardised draws in each output's unit; a column per output when each has its own."""
     scaling = run.emulator.scaling
-    return {o: {**_summary(values * scaling.y_std[i]), "unit": ""}
+    own = values.ndim == 2 and values.shape[1] == len(scaling.outputs) > 1
+    return {o: {**_summary((values[:, i] if own else values) * scaling.y_std[i]), "unit": ""}
             for i, o in enumerate(scaling.outputs)}
 
 
@@ -221,11 +223,14 @@ def posterior_frame(run: CalibrationRun) -> pd.DataFrame:
     names = run.emulator.scaling.x_columns if run.koh.ard else ["shared"]
     for i, name in enumerate(names):
         frame[f"discrepancy_lengthscale_{name}"] = lengthscales[:, i]
-    frame["noise_std"] = np.exp(flat["log_noise_std"])
+    noise = np.exp(flat["log_noise_std"])
+    own = noise.ndim == 2
+    if not own:
+        frame["noise_std"] = noise
     for i, output in enumerate(run.emulator.scaling.outputs):
         scale = run.emulator.scaling.y_std[i]
         frame[f"discrepancy_std_{output}"] = frame["discrepancy_std"] * scale
-        frame[f"noise_std_{output}"] = frame["noise_std"] * scale
+        frame[f"noise_std_{output}"] = (noise[:, i] if own else noise) * scale
     frame["diverging"] = post.diverging.reshape(-1)
     return frame
 

@@ -110,6 +110,12 @@ class BayesSettings(_Strict):
     (widened 1.5 times, so R-hat compares dispersed chains) and its covariance
     is the initial dense mass matrix.
 
+    ``noise_per_output: true`` gives each pooled output its own observation
+    error σ_ε (same prior): outputs measured by different instruments (a
+    meter read in coarse steps beside a fine one) otherwise share one σ_ε
+    that the most precise output pulls down, and the others' residuals are
+    then explained by θ.
+
     ``emulator_error: holdout`` adds the emulator's mean squared error on the
     held-out runs (per output, standardised) to every observation's variance:
     the GP's own conditional variance is far smaller than its error on new
@@ -149,6 +155,7 @@ class BayesSettings(_Strict):
         default_factory=lambda: LogNormalPrior(median=1.0, log_sd=0.75))
     noise_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.05))
     ard: bool = False
+    noise_per_output: bool = False
     emulator_error: Literal["holdout", "none"] = "holdout"
     likelihood: Literal["auto", "exact", "lowrank"] = "auto"
     exact_max_observations: int = Field(default=150, ge=1)

@@ -212,8 +212,10 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
                         for o in emulator.scaling.outputs])
         extra = mse[emulator.scaling.output_index(run.paired.rows["output"].to_numpy())]
     run.extra_variance = extra
+    row_output = emulator.scaling.output_index(run.paired.rows["output"].to_numpy())
     data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs,
-                          None if extra is None else extra[run.obs_rows])
+                          None if extra is None else extra[run.obs_rows],
+                          obs_outputs=row_output[run.obs_rows])
     z_start = special.ndtri(np.clip(run.deterministic.unit, 1e-6, 1 - 1e-6)) \
         if bs.init == "deterministic" else None
     inverse_mass = None
@@ -246,12 +248,12 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
         emulator.grid, run.obs_rows, run.heldout_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
         flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
-        extra_variance=extra, random_state=bs.seed)
+        extra_variance=extra, random_state=bs.seed, noise_index=row_output)
     at_obs = bayes.predictive(
         emulator.grid, run.obs_rows, run.obs_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
         flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
-        extra_variance=extra, random_state=bs.seed)
+        extra_variance=extra, random_state=bs.seed, noise_index=row_output)
     outputs_h = run.paired.rows["output"].to_numpy()[run.heldout_rows]
     scaling = emulator.scaling
     run.predictive = {
