@@ -311,7 +311,6 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
                 jnp.exp(log_sd_delta), log_ls, d, ard))
             return
         mean, cov = _emulator_moments(z, d)
-        n = d["y"].shape[0]
         total = (cov + jnp.exp(2 * log_sd_delta) * _discrepancy_kernel(log_ls, d, ard)
                  + jnp.diag(d["extra_variance"])
                  + jnp.diag(noise_variance + _JITTER))
