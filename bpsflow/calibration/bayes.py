@@ -299,7 +299,7 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
         m, s = priors["log_noise_std"]
         if n_noise == 1:
             log_sd_eps = numpyro.sample("log_noise_std", dist.Normal(m, s))
-            noise_variance = jnp.exp(2 * log_sd_eps)
+            noise_variance = jnp.exp(2 * log_sd_eps) * jnp.ones_like(d["y"])
         else:
             log_sd_eps = numpyro.sample("log_noise_std",
                                         dist.Normal(m, s).expand([n_noise]).to_event(1))
