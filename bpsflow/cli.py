@@ -389,7 +389,7 @@ def synth(config: Path = ConfigArg,
     path = synthesize(cfg, spec, out.resolve(), detailed=detailed)
     console.print(f"wrote {path}")
     if simpler is not None:
-        console.print(f"wrote {write_equivalent_truth(cfg, simpler, out.resolve())}")
+        console.print(f"wrote {write_equivalent_truth(cfg, spec, simpler, out.resolve())}")
     if detailed:
         from bpsflow.detailed import CALIBRATION_FILE, DETAILED_FILE, METADATA_FILE
 

@@ -79,7 +79,7 @@ class _Rooms:
             if obj.name:
                 self.by_name.setdefault(obj.name.upper(), []).append(obj)
         for obj in objects:
-            for value in {f.strip().upper() for f in obj.fields[1:] if f.strip()}:
+            for value in _named(obj):
                 if value in self.by_name:
                     self.users.setdefault(value, []).append(obj)
 
@@ -104,10 +104,15 @@ class _Rooms:
         for user in self.users.get(obj.name.upper(), []):
             zones |= self._zones_within(user, depth - 1)
         if depth == 1:
-            for value in {f.strip().upper() for f in obj.fields[1:] if f.strip()}:
+            for value in _named(obj):
                 for named in self.by_name.get(value, []):
                     zones |= self._zones_named(named)
         return zones
+
+
+def _named(obj: IdfObject) -> set[str]:
+    """The object's field values after its name, as names (upper case) it may refer to."""
+    return {f.strip().upper() for f in obj.fields[1:] if f.strip()}
 
 
 def _zone_multiplier(zone: IdfObject) -> float:

@@ -15,7 +15,6 @@ true values behind them in the ``detailed`` block of ``truth.json``).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Literal
 
@@ -256,7 +255,7 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     return path
 
 
-def write_equivalent_truth(config: Config, simpler: Config, out_dir: Path) -> Path:
+def write_equivalent_truth(config: Config, truth: Truth, simpler: Config, out_dir: Path) -> Path:
     """Write ``truth_equivalent.json``: the truth's values as ``simpler``'s model can hold them.
 
     See :mod:`bpsflow.equivalent_truth`; pass the file to ``calibrate --truth``
@@ -264,12 +263,10 @@ def write_equivalent_truth(config: Config, simpler: Config, out_dir: Path) -> Pa
     """
     from bpsflow.equivalent_truth import equivalent_values
 
-    truth_path = out_dir / TRUTH_FILE
-    values = json.loads(truth_path.read_text(encoding="utf-8"))["values"]
-    found = equivalent_values(config, values, simpler)
+    found = equivalent_values(config, truth_sample(config, truth), simpler)
     path = out_dir / EQUIVALENT_TRUTH_FILE
     write_json(path, {"values": found.values, "how": found.how,
-                      "truth": str(truth_path), "truth_config": str(config.source),
+                      "truth": str(out_dir / TRUTH_FILE), "truth_config": str(config.source),
                       "config": str(simpler.source)})
     return path
 

@@ -205,14 +205,14 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
     emulator = run.emulator
     outputs_obs = run.paired.rows["output"].to_numpy()[run.obs_rows]
     y = emulator.scaling.y(run.paired.observed[run.obs_rows], outputs_obs)
+    row_output = emulator.scaling.output_index(run.paired.rows["output"].to_numpy())
     extra = None
     if bs.emulator_error == "holdout" and emulator.test is not None:
         # per grid row: the emulator's hold-out squared error of the row's output
         mse = np.array([emulator.test.per_output[o]["mse_standardised"]
                         for o in emulator.scaling.outputs])
-        extra = mse[emulator.scaling.output_index(run.paired.rows["output"].to_numpy())]
+        extra = mse[row_output]
     run.extra_variance = extra
-    row_output = emulator.scaling.output_index(run.paired.rows["output"].to_numpy())
     data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs,
                           None if extra is None else extra[run.obs_rows],
                           obs_outputs=row_output[run.obs_rows])
