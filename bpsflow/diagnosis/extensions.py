@@ -169,7 +169,7 @@ EXTENSIONS: dict[str, Extension] = {
         snippet="solar_aperture.idf",
         parameters=(NewParameter(
             "solar_aperture_m2", "OtherEquipment", "Design Level",
-            -5.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),),
+            0.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),),
         schedule_file="facade_irradiance.csv",
         drivers=("incident_solar_south", "incident_solar_east", "incident_solar_west",
                  "incident_solar_north", "incident_solar_roof", "global_horizontal_radiation",

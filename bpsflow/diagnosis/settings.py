@@ -9,7 +9,7 @@ config without the section diagnoses its first measured output::
       alpha: 0.01                 # family-wise level of the driver tests (Holm)
       candidate_alpha: 0.05       # drivers below this still call candidates (cross-validated)
       min_share: 0.05             # a driver must explain this share of residual variance
-      min_amplitude: 0.01         # ... and move the output by this fraction of its mean
+      min_amplitude: 0.005        # ... and move the output by this fraction of its mean
       plausible_change: 0.5       # relative change of a fixed parameter still "plausible"
       extensions: [infiltration, internal_gain_schedule, solar_aperture, thermal_mass]
       zone: null                  # the zone the extensions are written for (see below)
@@ -113,7 +113,7 @@ class DiagnosisSettings(BaseModel):
     parameters: list[str] | None = None
     alpha: float = Field(default=0.01, gt=0, lt=1)
     min_share: float = Field(default=0.05, ge=0, lt=1)
-    min_amplitude: float = Field(default=0.01, ge=0)
+    min_amplitude: float = Field(default=0.005, ge=0)
     folds: int = Field(default=4, ge=2)
     plausible_change: float = Field(default=0.5, gt=0)
     gain_alpha: float = Field(default=0.05, gt=0, lt=1)

@@ -843,7 +843,14 @@ def candidate_causes(context: _Context, current: Model, significant: list,
     """The causes worth fitting for the significant drivers, every shape of each.
 
     A family is called by the group of any significant driver
-    (:data:`FAMILY_GROUPS`), not only by the strongest one. An aperture is
+    (:data:`FAMILY_GROUPS`), not only by the strongest one. A family no driver
+    calls is still a candidate, under the strongest driver: the existing
+    parameters' fit can absorb most of an effect's own signature (a constant
+    leak looks like a larger wall conductance), so what is left may carry
+    only a by-product of it (the morning reheat after a leaky night follows
+    the clock, not the outdoor temperature). Every candidate competes on the
+    linearised BIC screen of :func:`_try_extensions`, and only the best are
+    fitted and cross-validated. An aperture is
     tried on every face (:data:`APERTURE_FACES`); a face already accepted is
     not tried again. A law already in the model (infiltration) is re-opened
     with all its terms free, so a later round can correct a law chosen wrongly
@@ -861,9 +868,9 @@ def candidate_causes(context: _Context, current: Model, significant: list,
         called_by = FAMILY_GROUPS.get(family) or tuple(
             driver_group(name) for name in EXTENSIONS[family].drivers)
         calling = [groups[g] for g in called_by if g in groups]
-        if not calling:
+        if not calling and not significant:
             continue
-        driver = calling[0]
+        driver = calling[0] if calling else significant[0].name
         if family == "solar_aperture":
             out += _aperture_candidates(context, current, driver, accepted,
                                         {t.name for t in significant})
