@@ -17,10 +17,11 @@ Four steps (DESIGN.md §8; seed §1.1.1.1, §2.1, §4.3.1):
    structure is gone after that change, the verdict is ``parameter``.
    Otherwise ``model_form``, and the significant drivers name candidate
    extensions. No significant driver: ``none`` — no cause is invented.
-4. **Extend and measure.** Every family the significant drivers' groups
-   call (:data:`FAMILY_GROUPS`: irradiance and time-of-day structure call
-   the scheduled gain and an aperture on every face, since the sun follows
-   the clock) is written as candidate causes (:func:`candidate_causes`),
+4. **Extend and measure.** Every allowed family is written as candidate
+   causes (:func:`candidate_causes`), under the driver whose group calls it
+   (:data:`FAMILY_GROUPS`: irradiance and time-of-day structure call the
+   scheduled gain and an aperture on every face, since the sun follows the
+   clock) or else the strongest one,
    each with its shapes (gain blocks by day type and hours, aperture faces,
    law terms). A linearised screen ranks them all from one run per new
    parameter (:func:`_screen`); the ``cv_candidates`` best causes are fitted
