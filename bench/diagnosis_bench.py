@@ -18,13 +18,16 @@ power, four fitted parameters, the last week held out) on the surrogate:
     size in detection limits, season, setpoint regime, noise, model, backend)
     from ``--seed S`` (default: drawn from the clock and printed), plus
     ``--nulls K`` null datasets (default 40); writes ``bench/diagnosis_random.md``
-    and the ``diagnose_random_*`` figures.
+    and the ``diagnose_random_*`` figures. Each finished row is kept in the run's
+    scratch folder, so ``--summarise WORK`` scores an interrupted run (the
+    figures then say how much of it finished).
 
 Writes ``bench/results.json`` (names ``diagnose_*``) and
 ``bench/diagnosis_cases.md`` (the table).
 
     python bench/diagnosis_bench.py [--nulls 30] [--seeds 10] [--energyplus] [--parts cases,nulls,sweep]
     python bench/diagnosis_bench.py --random 60 [--seed S] [--nulls 40] [--backends surrogate,energyplus]
+    python bench/diagnosis_bench.py --summarise bench/work/diagnosis-random-XXXX
 """
 
 from __future__ import annotations
@@ -252,6 +255,9 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=None, help="parallel runs per diagnosis")
     parser.add_argument("--parallel", type=int, default=1,
                         help="--random: truths diagnosed at once, one process each (surrogate)")
+    parser.add_argument("--summarise", type=Path, default=None, metavar="WORK",
+                        help="score the rows a --random run in WORK finished (an interrupted "
+                             "run too), and write its table and figures")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--energyplus", action="store_true")
     parser.add_argument("--sweep", default="0.0001,0.0002,0.0003,0.0004,0.0005",
@@ -259,6 +265,11 @@ def main() -> None:
     parser.add_argument("--parts", default="cases,nulls,sweep",
                         help="comma-separated: cases, nulls, sweep, shipped-energyplus")
     args = parser.parse_args()
+    if args.summarise:
+        from diagnosis_random import summarise_work
+
+        summarise_work(args.summarise)
+        return
     if args.random:
         from diagnosis_random import main as random_main
 

@@ -949,6 +949,7 @@ def run_nulls(count: int, seed: int, work: Path, backend: str = "surrogate",
                 row = score(truth, None, result, seconds)
                 row["case"] = f"null_{batch}_{i}"
                 rows.append(row)
+                _keep(work, "nulls", row)
         except Exception as exc:                               # noqa: BLE001
             (directory / "crash.txt").write_text(traceback.format_exc())
             for i, phi in enumerate(phis):
@@ -1071,19 +1072,38 @@ def _print_row(r: dict) -> None:
           f"{r['status']} {r['error']}", flush=True)
 
 
+def _keep(work: Path, name: str, row: dict) -> None:
+    """Append a finished row to ``work/<name>.jsonl``: an interrupted run is still scored."""
+    import json
+
+    with (work / f"{name}.jsonl").open("a") as stream:
+        stream.write(json.dumps(row, default=str) + "\n")
+
+
+def finished_rows(work: Path, name: str) -> list[dict]:
+    """The rows :func:`_keep` wrote to ``work/<name>.jsonl`` (none: an empty list)."""
+    import json
+
+    path = work / f"{name}.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] \
+        if path.is_file() else []
+
+
 def run_truths(truths: list[Truth], work: Path, jobs: int | None = None,
                parallel: int = 1) -> list[dict]:
     """:func:`run_truth` for every truth, in ``parallel`` processes (rows in truth order).
 
     Each diagnosis on the surrogate runs in one process, so on a machine of
     several cores the truths themselves are the unit of parallel work; on
-    EnergyPlus keep ``parallel`` 1 and give the runs ``jobs`` instead.
+    EnergyPlus keep ``parallel`` 1 and give the runs ``jobs`` instead. Each
+    finished row is also appended to ``work/rows.jsonl`` (:func:`_keep`).
     """
     if parallel <= 1:
         rows = []
         for truth in truths:
             print(f"{truth.label}: {truth.describe()}", flush=True)
             rows.append(run_truth(truth, work, jobs))
+            _keep(work, "rows", rows[-1])
             _print_row(rows[-1])
         return rows
     import multiprocessing
@@ -1101,6 +1121,7 @@ def run_truths(truths: list[Truth], work: Path, jobs: int | None = None,
             except Exception as exc:                           # noqa: BLE001
                 done[truth.index] = failed_row(truth, None, "crash", _error(exc), 0.0)
             print(f"{truth.label}: {truth.describe()}", flush=True)
+            _keep(work, "rows", done[truth.index])
             _print_row(done[truth.index])
     return [done[truth.index] for truth in truths]
 
@@ -1108,7 +1129,9 @@ def run_truths(truths: list[Truth], work: Path, jobs: int | None = None,
 def main(count: int, seed: int | None, nulls: int, backends: tuple[str, ...],
          jobs: int | None = None, parallel: int = 1) -> dict:
     """Run the randomised benchmark; print the seed; write the table and the figures."""
-    from benchlib import record, scratch
+    from bpsflow.files import write_json
+
+    from benchlib import scratch
 
     if seed is None:
         seed = int(time.time_ns() % (2**31 - 1))
@@ -1116,14 +1139,41 @@ def main(count: int, seed: int | None, nulls: int, backends: tuple[str, ...],
                f"--nulls {nulls} --backends {','.join(backends)}")
     print(f"random diagnosis benchmark: seed {seed} ({command})", flush=True)
     work = scratch("diagnosis-random-")
+    write_json(work / "run.json", {"command": command, "seed": seed, "count": count,
+                                   "nulls": nulls, "backends": list(backends)})
     rows = run_truths(draw_truths(count, seed, backends), work, jobs, parallel)
     null_rows = run_nulls(nulls, seed, work, "surrogate", jobs=jobs) if nulls else []
+    return report(work, rows, null_rows)
+
+
+def summarise_work(work: Path) -> dict:
+    """Score what a run in ``work`` finished (``--summarise``): an interrupted run too.
+
+    The figures say how many of the drawn truths and nulls they cover.
+    """
+    return report(work, finished_rows(work, "rows"), finished_rows(work, "nulls"))
+
+
+def report(work: Path, rows: list[dict], null_rows: list[dict]) -> dict:
+    """Write the table and the figures of a run's rows (``work/run.json`` says what was drawn)."""
+    import json
+
+    from bpsflow.files import write_json
+
+    from benchlib import record
+
+    run = json.loads((work / "run.json").read_text())
+    command, seed, count = run["command"], run["seed"], run["count"]
+    backends = tuple(run["backends"])
     summary = summarise(rows, null_rows)
     # a run on other backends keeps its own table and figures beside the surrogate's
     suffix = "" if backends == ("surrogate",) else "_" + "_".join(backends)
     (ROOT / "bench" / f"diagnosis_random{suffix}.md").write_text(
         markdown(rows, null_rows, summary, command))
-    extra = {"seed": seed, "truths": count, "backends": list(backends)}
+    extra: dict = {"seed": seed, "truths": len(rows), "backends": list(backends)}
+    if len(rows) < count or len(null_rows) < run["nulls"]:
+        extra["partial"] = (f"interrupted: {len(rows)} of {count} truths and "
+                            f"{len(null_rows)} of {run['nulls']} null datasets finished")
     record(f"diagnose_random_accuracy{suffix}", summary["accuracy"], "share", ">= 0.90", command,
            per_family=summary["per_family"], confusion=summary["confusion"],
            aperture_facade_right=summary["aperture_facade_right"],
@@ -1143,8 +1193,6 @@ def main(count: int, seed: int | None, nulls: int, backends: tuple[str, ...],
     print(markdown(rows, null_rows, summary, command))
     result = {"command": command, "rows": rows, "nulls": null_rows, "summary": summary,
               "truths": [asdict(t) for t in draw_truths(count, seed, backends)]}
-    from bpsflow.files import write_json
-
     write_json(work / "random.json", result)
     print(f"rows and truths: {work / 'random.json'}")
     return result

@@ -241,3 +241,33 @@ def test_facade_matching_by_name_degrees_or_azimuth():
             {"name": "solar_aperture", "accepted": True, "facade": facade,
              "fitted": {"solar_aperture_m2": 1.2}}]), 1.0)
         assert row["cause_ok"] and row["facade_ok"] is ok and row["size_errors"] == [error]
+
+
+def test_an_interrupted_run_is_scored_from_its_finished_rows(tmp_path, monkeypatch):
+    """Rows kept as they finish are scored by ``--summarise``, and say how much finished."""
+    import json
+
+    import benchlib
+
+    monkeypatch.setattr(benchlib, "RESULTS", tmp_path / "results.json")
+    monkeypatch.setattr(dr, "ROOT", tmp_path)
+    (tmp_path / "bench").mkdir()
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "run.json").write_text(json.dumps({"command": "c", "seed": 5, "count": 4,
+                                               "nulls": 10, "backends": ["surrogate"]}))
+    truths = dr.draw_truths(4, 5, ("surrogate",))
+    null = dr.Truth(0, "null", "test_cell", "surrogate", (1, 5), 30.0, None, 0.9, 2, [])
+    dr._keep(work, "rows", dr.score(null, None, _result("none", []), 2.0))
+    dr._keep(work, "rows", dr.failed_row(truths[1], None, "crash", "boom", 4.0))
+    dr._keep(work, "nulls", dr.score(null, None, _result("model_form", []), 6.0))
+    result = dr.summarise_work(work)
+    assert len(result["rows"]) == 2 and len(result["nulls"]) == 1
+    figures = json.loads((tmp_path / "results.json").read_text())
+    accuracy = figures["diagnose_random_accuracy"]
+    assert accuracy["value"] == pytest.approx(0.5) and accuracy["truths"] == 2
+    assert "2 of 4 truths and 1 of 10 null" in accuracy["partial"]
+    assert figures["diagnose_random_crashes"]["value"] == 1
+    # the null in the truths says none, the null dataset raised a false alarm
+    assert figures["diagnose_random_false_alarm_rate"]["value"] == pytest.approx(0.5)
+    assert (tmp_path / "bench" / "diagnosis_random.md").is_file()
