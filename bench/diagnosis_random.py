@@ -58,6 +58,7 @@ per truth; not a sweep per family.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import statistics
@@ -1074,16 +1075,14 @@ def _print_row(r: dict) -> None:
 
 def _keep(work: Path, name: str, row: dict) -> None:
     """Append a finished row to ``work/<name>.jsonl``: an interrupted run is still scored."""
-    import json
+    from bpsflow.files import jsonable
 
     with (work / f"{name}.jsonl").open("a") as stream:
-        stream.write(json.dumps(row, default=str) + "\n")
+        stream.write(json.dumps(jsonable(row)) + "\n")
 
 
 def finished_rows(work: Path, name: str) -> list[dict]:
     """The rows :func:`_keep` wrote to ``work/<name>.jsonl`` (none: an empty list)."""
-    import json
-
     path = work / f"{name}.jsonl"
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] \
         if path.is_file() else []
@@ -1156,8 +1155,6 @@ def summarise_work(work: Path) -> dict:
 
 def report(work: Path, rows: list[dict], null_rows: list[dict]) -> dict:
     """Write the table and the figures of a run's rows (``work/run.json`` says what was drawn)."""
-    import json
-
     from bpsflow.files import write_json
 
     from benchlib import record
