@@ -30,6 +30,7 @@ from bpsflow.diagnosis.extensions import (
     free_parameters,
     gain_blocks,
     law_text,
+    new_parameters,
     profile_schedule,
     term_subsets,
     year_hours,
@@ -131,6 +132,28 @@ def test_law_text_names_the_fitted_terms():
     assert law_text({"infiltration_b_m3s_per_k": 0.00125, "infiltration_c_m3s_per_ms": 0.004}) \
         == "flow = 0.00125·|ΔT| + 0.004·V m³/s"
     assert law_text({}) == "flow = 0 m³/s"
+
+
+def test_an_extension_is_at_zero_only_when_every_size_parameter_is_at_its_nested_value():
+    """A fit that leaves the level at 0 has only moved the existing inputs: no cause."""
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.workflow import null_sized
+
+    gain = new_parameters(EXTENSIONS["internal_gain_schedule"], "gain", variant=2)
+    mass = new_parameters(EXTENSIONS["thermal_mass"], "mass")
+    law = new_parameters(EXTENSIONS["infiltration"], "leak")
+
+    def at(parameters, *values):
+        return SimpleNamespace(named={p.name: v for p, v in zip(parameters, values)})
+
+    # a radiant fraction or a thickness shapes an effect, it does not size it
+    assert null_sized(at(gain, 0.0, 0.6), gain)
+    assert not null_sized(at(gain, 15.0, 0.0), gain)
+    assert null_sized(at(mass, 0.0, 0.3), mass)
+    assert not null_sized(at(mass, 2.0, 0.1), mass)
+    assert null_sized(at(law, 0.0, 0.0, 0.0, 0.0), law)
+    assert not null_sized(at(law, 0.0, 0.0, 0.0, 1e-4), law)
 
 
 def test_single_day_block_profile_and_schedule_follow_the_day_of_week():

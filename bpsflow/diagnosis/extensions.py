@@ -104,6 +104,10 @@ class NewParameter:
     #: value): 0 for a design level or coefficient; a shape parameter (a thickness)
     #: keeps its template value, since the level at 0 already nests the model.
     nested: float = 0.0
+    #: Whether the parameter sets the effect's size: the extension changes nothing
+    #: while every such parameter is at its nested value (a radiant fraction or a
+    #: thickness only shapes an effect whose level is not 0).
+    sets_size: bool = True
 
 
 @dataclass(frozen=True)
@@ -156,11 +160,12 @@ EXTENSIONS: dict[str, Extension] = {
         snippet="internal_gain_schedule.idf",
         parameters=(
             NewParameter("scheduled_gain_w", "OtherEquipment", "Design Level",
-                         -3000.0, 3000.0, "W", "gain while the block schedule is on"),
+                         0.0, 3000.0, "W", "gain while the block schedule is on"),
             # no effect while the design level is 0: nested at 0 like the level
             NewParameter("scheduled_gain_radiant_fraction", "OtherEquipment",
                          "Fraction Radiant", 0.0, 0.9, "-",
-                         "radiant fraction of the scheduled gain (to the inside faces)")),
+                         "radiant fraction of the scheduled gain (to the inside faces)",
+                         sets_size=False)),
         schedule_file="internal_gain_profile.csv",
         drivers=("hour_of_day", "weekend")),
     "solar_aperture": Extension(
@@ -215,7 +220,7 @@ EXTENSIONS: dict[str, Extension] = {
                     NewParameter(
             "internal_mass_thickness_m", "Material", "Thickness", 0.02, 0.4, "m",
             "thickness of the internal mass's concrete layer (its time constant)",
-            nested=0.1)),
+            nested=0.1, sets_size=False)),
         # Mass answers the daily cycle of what drives the loads: outdoor
         # temperature and solar gain, felt hours later. No driver is lagged, so
         # it is nominated by the daily structure those leave in the residuals.
@@ -544,7 +549,7 @@ def new_parameters(extension: Extension, object_name: str, variant: int | None =
                                          name=material_name if p.object.upper() == "MATERIAL"
                                          and material_name else object_name)],
                       provenance={**provenance, "nested_at": float(p.nested),
-                                  "reports_as": p.name,
+                                  "reports_as": p.name, "sets_size": p.sets_size,
                                   **({"term": p.term} if p.term else {})})
             for p in free_parameters(extension, terms)]
 

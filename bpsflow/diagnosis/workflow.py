@@ -530,6 +530,11 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
             result.cause = {"driver": significant[0].name, "parameter": None,
                             "extension": None, "summary": ""}
         if not passed:
+            continued = _continue_fit(context, result, current, entries, round_number,
+                                      announce)
+            if continued is not None:
+                current = continued
+                continue
             announce("no candidate extension improved the cross-validated accuracy "
                      "significantly")
             result.unexplained = [t.name for t in significant]
@@ -558,6 +563,52 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
         entry.setdefault("accepted", False)
     _finish(context, result)
     return result
+
+
+def _continue_fit(context: _Context, result: Diagnosis, current: Model,
+                  entries: list[tuple[dict, Model | None]], round_number: int,
+                  announce: Announce) -> Model | None:
+    """The current model refitted from a candidate fitted at zero that beat it, if any.
+
+    Such a candidate only moved the existing parameters (:func:`null_sized`):
+    the current model's own fit, continued from there, is the better model,
+    and the residuals are tested again. ``None`` when no such candidate
+    improved the fit significantly or the continued fit is no better.
+    """
+    d = context.data
+    better = [(e, m) for e, m in entries if m is not None and e.get("improves_fit")]
+    if not better:
+        return None
+    _, start = min(better, key=lambda pair: pair[0]["bic"]["after"])
+    label = f"round{round_number}_continued"
+    fit = context.fit(current.config, label, [Problem(
+        context.sample_of(current.config, current.fit), list(current.fitted), d.y,
+        d.calibration, {p.name: start.fit.named[p.name] for p in current.fitted})])[0]
+    if fit.failed:
+        context.notes.append(f"round {round_number}: the current model's continued fit "
+                             f"failed: {_excerpt(fit.failure)}")
+        return None
+    cal = d.calibration
+    before = comparison.bic(d.y[cal] - current.fit.prediction[cal], len(current.fitted))
+    after = comparison.bic(d.y[cal] - fit.prediction[cal], len(current.fitted))
+    if not after < before:
+        return None
+    model = Model(current.config, list(current.fitted), fit, label)
+    if result.final is not result.base:
+        result.final = model
+    for entry in result.extensions:
+        if entry.get("accepted"):
+            # an accepted extension's size is the continued fit's
+            entry.setdefault("fitted_when_accepted", dict(entry["fitted"]))
+            entry["fitted"] = {reported: float(fit.named[name]) for reported, name
+                               in entry.get("parameter_names", {}).items()
+                               if name in fit.named}
+    context.notes.append(f"round {round_number}: a candidate fitted at zero improved the fit "
+                         f"(BIC {before:.1f} -> {after:.1f}): the current model's fit had not "
+                         f"converged and was continued from there")
+    announce(f"the current model's fit is continued from a candidate fitted at zero: BIC "
+             f"{before:.1f} -> {after:.1f}")
+    return model
 
 
 def _suggestive(context: _Context, tests: list) -> list:
@@ -995,8 +1046,9 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     designs: list[np.ndarray | None] | None = None
     if all(c.screen_columns is not None for c in candidates):
         designs = [d for c in candidates for d in (c.screen_columns or [])]
+    screen_starts: list[dict[str, float]] = []
     screened = _screen(context, union, union_sample, current, [v for _, v in flat],
-                       round_number, designs)
+                       round_number, designs, screen_starts)
     # per cause its best variant by the screen; the best causes are fitted for real
     best_variant: dict[int, int] = {}
     for position, (candidate, _) in enumerate(flat):
@@ -1009,13 +1061,27 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         variant[2]["screen_bic"] = float(screened[position])
     announce("  screened (linearised BIC): " + ", ".join(
         f"{flat[i][0].cause} {screened[i]:.1f}" for i in ranked))
-    problems = [Problem(union_sample, [*_without(current.fitted, free), *free], d.y,
-                        d.calibration, {**current.fit.named,
-                                        **{p.name: current.fit.named.get(p.name, 0.0)
-                                           for p in free}})
-                for _, (_, free, _) in (flat[i] for i in selected)]
+    # Each cause is fitted from two points: its nesting zero (the fit can only
+    # improve on the current model) and the screen's linearised optimum (a
+    # start near the minimum when the effect is far from zero: an internal
+    # mass's area and thickness trade along a long valley); the better is kept.
+    problems, flat_fitted = [], []
+    for i in selected:
+        free = flat[i][1][1]
+        fitted = [*_without(current.fitted, free), *free]
+        at_zero = {**current.fit.named,
+                   # a new parameter starts where it nests the model (a thickness
+                   # at its template value, not its bound)
+                   **{p.name: current.fit.named.get(p.name, union_sample.get(p.name, 0.0))
+                      for p in free}}
+        starts = [at_zero]
+        if screen_starts[i] and any(screen_starts[i].get(p.name, value) != value
+                                    for p in fitted for value in [at_zero[p.name]]):
+            starts.append({**at_zero, **screen_starts[i]})
+        for start in starts:
+            problems.append(Problem(union_sample, fitted, d.y, d.calibration, start))
+            flat_fitted.append(flat[i])
     fits = context.fit(union, f"round{round_number}", problems)
-    flat_fitted = [flat[i] for i in selected]
     cal = d.calibration
     chosen = []         # (candidate, config, fitted parameters, detail, fit)
     for candidate in candidates:
@@ -1075,14 +1141,18 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                    and (p.provenance or {}).get("extension") == candidate.family)]
         cv = oof.get(index)
         test: dict = cv["test"] if cv else {}
-        passed = bool(cv is not None and test["p_value"] < settings.gain_alpha
-                      and bics[index] < bic_before and cv["cvrmse_after"] < cv["cvrmse_before"])
+        improves = bool(cv is not None and test["p_value"] < settings.gain_alpha
+                        and bics[index] < bic_before
+                        and cv["cvrmse_after"] < cv["cvrmse_before"])
+        at_zero = null_sized(fit, new)
+        passed = improves and not at_zero
         names = [p.name for p in fitted]
         screened_out = [(v[2]["screen_bic"], c.cause) for c, v in flat
                         if not any(c is other for other, *_ in chosen)]
         entry = {"name": candidate.family, "cause": candidate.cause, "driver": candidate.driver,
                  "round": round_number, "rank": rank + 1,
                  "fitted": {_reported(p): float(fit.named[p.name]) for p in new},
+                 "parameter_names": {_reported(p): p.name for p in new},
                  "fitted_std": {_reported(p): float(np.sqrt(max(
                      fit.covariance[names.index(p.name)][names.index(p.name)], 0.0)))
                      for p in new},
@@ -1095,6 +1165,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                  "loss_difference": test or None,
                  "bic": {"before": bic_before, "after": bics[index]},
                  "passed": passed, "iterations": fit.iterations,
+                 **({"at_zero": True, "improves_fit": improves} if at_zero else {}),
                  "files": str(extended.model.idf_objects[-1].parent), **detail}
         # the runner-up: the next cause fitted, or a screened-out one if its screen is lower
         others = [(float(bics[j]), chosen[j][0].cause, "fitted") for j in order if j != index]
@@ -1112,7 +1183,8 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                      f"{cv['cvrmse_after']:.3%}, p = {test['p_value']:.3g}" if cv else
                      " (not cross-validated: ranked below the best "
                      f"{settings.cv_candidates})")
-                 + f": {'passes' if passed else 'rejected'}")
+                 + f": {'passes' if passed else 'rejected'}"
+                 + (" (fitted at zero: not a cause)" if at_zero else ""))
         out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{candidate.cause}")))
     for candidate, variant in flat:
         if not any(c is candidate for c, *_ in chosen) and variant is \
@@ -1125,6 +1197,25 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                          "bic": {"before": bic_before, "after": None},
                          "passed": False, "screened_out": True, **variant[2]}, None))
     return out
+
+
+def null_sized(fit: Fit, new: list[Parameter]) -> bool:
+    """True when every size-setting parameter of ``new`` is fitted at its nested value.
+
+    An extension nested at zero changes nothing there, so a fit that improves
+    on the current model with the extension at zero has only moved the
+    existing parameters: the current fit had not converged, and the extension
+    is not a cause.
+    """
+    sizes = [p for p in new if (p.provenance or {}).get("sets_size", False)]
+    if not sizes:
+        return False
+    for p in sizes:
+        lower, upper = parameter_range(p)
+        nested = float((p.provenance or {}).get("nested_at", 0.0))
+        if abs(float(fit.named[p.name]) - nested) > 1e-6 * (upper - lower):
+            return False
+    return True
 
 
 def _gauss_newton_refit(measured: np.ndarray, fit: Fit, fitted: list[Parameter],
@@ -1155,8 +1246,12 @@ def _unchanged(scores_now: dict) -> dict:
 
 def _screen(context: _Context, union: Config, union_sample: dict, current: Model,
             variants: list[tuple[Config, list[Parameter], dict]], round_number: int,
-            designs: list[np.ndarray | None] | None = None) -> list[float]:
+            designs: list[np.ndarray | None] | None = None,
+            starts: list[dict[str, float]] | None = None) -> list[float]:
     """Linearised BIC of every variant, from one batch of one run per new parameter.
+
+    ``starts``, when given, receives per variant the linearised fit's values
+    of the existing and new parameters (a second starting point of the fit).
 
     Each variant's new parameters are set, one at a time, a quarter of their
     range above their current value (a parameter that acts only through the
@@ -1180,6 +1275,8 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
     for (_, free, _), new_columns in zip(variants, designs):
         if new_columns is None:
             out.append(np.inf)
+            if starts is not None:
+                starts.append({})
             continue
         kept = [p for p in current.fitted if p.name not in {q.name for q in free}]
         keep_index = [i for i, p in enumerate(current.fitted) if p in kept]
@@ -1198,6 +1295,12 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
                                                                  high_bounds * scale))
         left = residual - (design / scale) @ solution.x
         out.append(comparison.bic(left, len(kept) + len(free)))
+        if starts is not None:
+            moved = solution.x / scale
+            now = [float(current.fit.values[i]) for i in keep_index] + \
+                [float(union_sample.get(p.name, 0.0)) for p in free]
+            starts.append({p.name: value + step for p, value, step
+                           in zip([*kept, *free], now, moved)})
     return out
 
 
