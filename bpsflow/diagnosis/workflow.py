@@ -1069,15 +1069,15 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     for i in selected:
         free = flat[i][1][1]
         fitted = [*_without(current.fitted, free), *free]
-        at_zero = {**current.fit.named,
-                   # a new parameter starts where it nests the model (a thickness
-                   # at its template value, not its bound)
-                   **{p.name: current.fit.named.get(p.name, union_sample.get(p.name, 0.0))
+        from_zero = {**current.fit.named,
+                     # a new parameter starts where it nests the model (a thickness
+                     # at its template value, not its bound)
+                     **{p.name: current.fit.named.get(p.name, union_sample.get(p.name, 0.0))
                       for p in free}}
-        starts = [at_zero]
-        if screen_starts[i] and any(screen_starts[i].get(p.name, value) != value
-                                    for p in fitted for value in [at_zero[p.name]]):
-            starts.append({**at_zero, **screen_starts[i]})
+        starts = [from_zero]
+        if screen_starts[i] and any(screen_starts[i].get(p.name, from_zero[p.name])
+                                    != from_zero[p.name] for p in fitted):
+            starts.append({**from_zero, **screen_starts[i]})
         for start in starts:
             problems.append(Problem(union_sample, fitted, d.y, d.calibration, start))
             flat_fitted.append(flat[i])
@@ -1297,10 +1297,10 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
         out.append(comparison.bic(left, len(kept) + len(free)))
         if starts is not None:
             moved = solution.x / scale
-            now = [float(current.fit.values[i]) for i in keep_index] + \
+            origin = [float(current.fit.values[i]) for i in keep_index] + \
                 [float(union_sample.get(p.name, 0.0)) for p in free]
             starts.append({p.name: value + step for p, value, step
-                           in zip([*kept, *free], now, moved)})
+                           in zip([*kept, *free], origin, moved)})
     return out
 
 
