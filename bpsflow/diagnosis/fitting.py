@@ -255,7 +255,6 @@ class _State:
             x0[j] = np.clip((float(value) - self.lower[j]) / self.width[j], 0.0, 1.0)
         self.x = x0
         self.damping = 1e-3
-        self.tolerance = 1e-4
         self.done = self.k == 0
         self.iterations = 0
         self.failure = ""
@@ -296,7 +295,6 @@ class _State:
     def _step(self, damping: float) -> np.ndarray:
         free = np.ones(self.k, dtype=bool)
         gradient = self.J.T @ self.r
-        step = np.zeros(self.k)
         for _ in range(self.k + 1):
             J = self.J[:, free]
             normal = J.T @ J
@@ -314,7 +312,7 @@ class _State:
         self.last_step = step
         return np.clip(self.x + step, 0.0, 1.0)
 
-    def _converged(self) -> bool:
+    def _converged(self, tolerance: float) -> bool:
         """True when even an undamped step promises less than the tolerance.
 
         A small decrease after a heavily damped (short) step says little: in a
@@ -324,7 +322,7 @@ class _State:
         """
         step = np.clip(self.x + self._step(1e-9), 0.0, 1.0) - self.x
         promised = self.r @ self.r - float(np.sum((self.r + self.J @ step) ** 2))
-        return promised < self.tolerance * max(self.cost, 1e-300)
+        return promised < tolerance * max(self.cost, 1e-300)
 
     def fail(self, reason: str) -> None:
         """End this problem as failed (its starting point did not run)."""
@@ -348,8 +346,7 @@ class _State:
             decrease = (self.cost - cost) / max(self.cost, 1e-300)
             self.take(x, predictions)
             self.damping = max(self.damping / 5, 1e-9)
-            self.tolerance = tolerance
-            if moved < 1e-5 or (decrease < tolerance and self._converged()):
+            if moved < 1e-5 or (decrease < tolerance and self._converged(tolerance)):
                 self.done = True
         else:
             self.damping *= 10

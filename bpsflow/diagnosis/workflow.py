@@ -1074,10 +1074,8 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                      # at its template value, not its bound)
                      **{p.name: current.fit.named.get(p.name, union_sample.get(p.name, 0.0))
                       for p in free}}
-        starts = [from_zero]
-        if screen_starts[i] and any(screen_starts[i].get(p.name, from_zero[p.name])
-                                    != from_zero[p.name] for p in fitted):
-            starts.append({**from_zero, **screen_starts[i]})
+        from_screen = {**from_zero, **screen_starts[i]}
+        starts = [from_zero] if from_screen == from_zero else [from_zero, from_screen]
         for start in starts:
             problems.append(Problem(union_sample, fitted, d.y, d.calibration, start))
             flat_fitted.append(flat[i])
