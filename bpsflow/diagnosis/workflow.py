@@ -91,6 +91,11 @@ Announce = Callable[[str], None]
 #: the t reference 3 degrees of freedom and rejects even a 20-fold gain.
 HELDOUT_LAGS = 24
 
+#: A cause is fitted a second time, from the screen's linearised optimum, when
+#: the screen promised a BIC lower than its fit from zero reached by more than
+#: this (Kass & Raftery 1995: 2 is where evidence starts to count).
+SCREEN_START_MARGIN = 2.0
+
 
 @dataclass
 class Model:
@@ -1061,10 +1066,13 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         variant[2]["screen_bic"] = float(screened[position])
     announce("  screened (linearised BIC): " + ", ".join(
         f"{flat[i][0].cause} {screened[i]:.1f}" for i in ranked))
-    # Each cause is fitted from two points: its nesting zero (the fit can only
-    # improve on the current model) and the screen's linearised optimum (a
-    # start near the minimum when the effect is far from zero: an internal
-    # mass's area and thickness trade along a long valley); the better is kept.
+    # Each cause is fitted from its nesting zero (the fit can only improve on
+    # the current model), and again from the screen's linearised optimum when
+    # the screen promised a BIC lower by SCREEN_START_MARGIN than the first fit
+    # reached: an internal mass's area and thickness trade along a long valley
+    # that a fit from zero can stall in. The better of the two is kept; a cause
+    # whose first fit reached its promise costs no second batch of runs.
+    cal = d.calibration
     problems, flat_fitted = [], []
     for i in selected:
         free = flat[i][1][1]
@@ -1074,13 +1082,21 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                      # at its template value, not its bound)
                      **{p.name: current.fit.named.get(p.name, union_sample.get(p.name, 0.0))
                       for p in free}}
-        from_screen = {**from_zero, **screen_starts[i]}
-        starts = [from_zero] if from_screen == from_zero else [from_zero, from_screen]
-        for start in starts:
-            problems.append(Problem(union_sample, fitted, d.y, d.calibration, start))
-            flat_fitted.append(flat[i])
+        problems.append(Problem(union_sample, fitted, d.y, d.calibration, from_zero))
+        flat_fitted.append(flat[i])
     fits = context.fit(union, f"round{round_number}", problems)
-    cal = d.calibration
+    again = []
+    for i, problem, fit in zip(selected, list(problems), list(fits)):
+        from_screen = {**(problem.start or {}), **screen_starts[i]}
+        reached = (np.inf if fit.failed else
+                   comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters)))
+        if from_screen != problem.start and screened[i] < reached - SCREEN_START_MARGIN:
+            again.append(Problem(union_sample, problem.parameters, d.y, d.calibration,
+                                 from_screen))
+            flat_fitted.append(flat[i])
+    if again:
+        fits = [*fits, *context.fit(union, f"round{round_number}_screen_start", again)]
+        problems.extend(again)
     chosen = []         # (candidate, config, fitted parameters, detail, fit)
     for candidate in candidates:
         mine = [(v, f, problem) for (c, v), f, problem in zip(flat_fitted, fits, problems)
