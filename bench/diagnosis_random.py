@@ -54,6 +54,15 @@ of the added heat flow, no dynamics), then the effect runs alone on the
 backend and is rescaled to the drawn multiple (:func:`synthesise`). So the
 limits are a physical scaling of one measured sweep, measured on the backend
 per truth; not a sweep per family.
+
+Equal std is not equal detectability: the diagnosis first refits the existing
+inputs, and an effect they can mimic (a south aperture and the south window's
+dirt factor) leaves less in the residuals. Each row also records, per effect,
+its *unabsorbed multiple*: the drawn multiple times the share of the effect
+that no refit of the existing inputs reproduces, over the anchor's own such
+share (:func:`unabsorbed_shares`, from one sensitivity run per fitted input).
+The accuracy is reported by that multiple too, as an analysis; the drawn sizes
+and the goal are not changed by it.
 """
 
 from __future__ import annotations
@@ -603,6 +612,52 @@ def _synth_clean(config_path: Path, values: dict, output: str, directory: Path,
 
 #: Per backend: the measured anchor's effect-to-level ratio (see :func:`anchor_ratio`).
 _ANCHORS: dict[str, float] = {}
+#: Per backend: the share of the anchor's effect the fitted inputs cannot absorb.
+_ANCHOR_SHARES: dict[str, float] = {}
+
+
+def unabsorbed_shares(truth: Truth, base: Path, directory: Path, plain: np.ndarray,
+                      changes: list[np.ndarray]) -> list[float]:
+    """Per effect, the share of its hourly variation that refitting the existing inputs cannot mimic.
+
+    Each of ``changes`` is an effect's change of the diagnosed output (noise-free,
+    every evaluated hour). The existing parameters the diagnosis fits first
+    (:func:`bpsflow.diagnosis.workflow.fitted_parameters`) each move the
+    output along their own sensitivity (a finite difference of 2 % of the
+    parameter's range at the truth's values), and the offset along a
+    constant; the effect's part outside the span of those columns, on the
+    calibration hours, over its own std, is the share left in the residuals
+    for a diagnosis to find (1: nothing absorbed; 0: an existing input
+    reproduces it exactly). An analysis column: the drawn sizes are not
+    changed by it.
+    """
+    from bpsflow.config import load_config
+    from bpsflow.diagnosis.fitting import parameter_range
+    from bpsflow.diagnosis.workflow import fitted_parameters
+
+    config = load_config(base)
+    values = _truth_values(truth)
+    output = config.diagnosis.output
+    calibration = np.arange(len(plain)) < len(plain) - 24 * config.diagnosis.holdout_days
+    columns = [np.ones(int(calibration.sum()))]
+    for parameter in fitted_parameters(config, config.diagnosis):
+        low, high = parameter_range(parameter)
+        step = 0.02 * (high - low)
+        now = float(values.get(parameter.name,
+                               parameter.distribution.ppf(np.array([0.5]))[0]))
+        moved = {**values, parameter.name: now + step if now + step <= high else now - step}
+        frame = _synth_clean(base, moved, output, directory / f"sens_{parameter.name}",
+                             truth.backend)
+        columns.append((frame[output].to_numpy(dtype=float) - plain)[calibration])
+    design = np.column_stack(columns)
+    shares = []
+    for change in changes:
+        effect = change[calibration]
+        coefficients, *_ = np.linalg.lstsq(design, effect, rcond=None)
+        spread = float(np.std(effect))
+        shares.append(float(np.std(effect - design @ coefficients) / spread) if spread > 0
+                      else float("nan"))
+    return shares
 
 
 def anchor_ratio(backend: str, work: Path) -> float:
@@ -626,6 +681,8 @@ def anchor_ratio(backend: str, work: Path) -> float:
                                   {"A": 0.0, "B": 0.0, "C": WIND_LIMIT_M3S_PER_MS, "D": 0.0})
         plain, with_leak = _plain_and_with(anchor, base, directory, [leak])
         _ANCHORS[backend] = float(np.std(with_leak[0] - plain) / np.mean(np.abs(plain)))
+        (_ANCHOR_SHARES[backend],) = unabsorbed_shares(anchor, base, directory, plain,
+                                                       [with_leak[0] - plain])
         print(f"detection-limit anchor on the {backend}: wind leak std / mean output = "
               f"{_ANCHORS[backend]:.4f}", flush=True)
     return _ANCHORS[backend]
@@ -722,6 +779,14 @@ def synthesise(truth: Truth, base: Path, directory: Path, work: Path, *,
             realised.append(round(multiple / effect.multiple, 3))
             scales.append(effect.multiple / multiple)
         built = build_truth(truth, scales)
+        shares = unabsorbed_shares(truth, base, directory, plain,
+                                   [series - plain for series in alone])
+        anchor_share = _ANCHOR_SHARES[truth.backend]
+        for effect, size, share in zip(truth.effects, built.sizes, shares):
+            size["unabsorbed_share"] = round(share, 3)
+            # the drawn multiple counted on the part the fitted inputs leave, against the
+            # anchor's own such part
+            size["unabsorbed_multiple"] = round(effect.multiple * share / anchor_share, 3)
     config_path = _truth_config(base, directory, "hidden", built.text, built.files)
     frame = _synth_clean(config_path, _truth_values(truth), output, directory, truth.backend)
     noisy = add_noise(frame[output].to_numpy(dtype=float),
@@ -835,6 +900,8 @@ def score(truth: Truth, built: Built | None, result, seconds: float) -> dict:
             "reported": reported or "none", "accepted": [f for f in found if f],
             "fitted": fitted, "verdict_ok": verdict_ok, "cause_ok": cause_ok,
             "multiples": [e.multiple for e in truth.effects],
+            "unabsorbed_multiples": [size.get("unabsorbed_multiple")
+                                     for size in (built.sizes if built else [])],
             "size_errors": errors, "facade_ok": facade_ok,
             "gain_ratio": (after / before) if before and after is not None else None,
             "cvrmse_before": before, "cvrmse_after": after, "seconds": seconds,
@@ -993,6 +1060,14 @@ def summarise(rows: list[dict], null_rows: list[dict]) -> dict:
     # missed by design in a share of datasets); the goal is over all sizes
     by_size = {band: [r for r in effects if (min(r["multiples"]) >= 3.0) == big]
                for band, big in (("weakest >= 3x", True), ("weakest < 3x", False))}
+    # ... and by the weakest effect's multiple counted on the part the fitted inputs
+    # cannot absorb (:func:`unabsorbed_shares`; an analysis, not the goal)
+    unabsorbed = [r for r in effects if r.get("unabsorbed_multiples")
+                  and None not in r["unabsorbed_multiples"]]
+    by_unabsorbed = {band: [r for r in unabsorbed
+                            if low <= min(r["unabsorbed_multiples"]) < high]
+                     for band, low, high in (("below 1x", 0.0, 1.0), ("1x to 3x", 1.0, 3.0),
+                                             ("3x and above", 3.0, math.inf))}
     facades = [r["facade_ok"] for r in effects if r.get("facade_ok") is not None]
     nulls = [r for r in scored if r["family"] == "null"] + null_rows
     by_backend: dict[str, list[float]] = {}
@@ -1009,6 +1084,10 @@ def summarise(rows: list[dict], null_rows: list[dict]) -> dict:
                                     (sum(r["cause_ok"] for r in mine) / len(mine))
                                     if mine else float("nan")}
                              for band, mine in by_size.items()},
+        "accuracy_by_unabsorbed_size": {
+            band: {"n": len(mine), "verdict_and_cause":
+                   (sum(r["cause_ok"] for r in mine) / len(mine)) if mine else float("nan")}
+            for band, mine in by_unabsorbed.items()},
         "median_size_error_3x": _median(big_errors), "size_errors_3x": len(big_errors),
         "median_gain_ratio": _median(gains),
         "aperture_facade_right": (sum(facades) / len(facades)) if facades else float("nan"),
@@ -1035,6 +1114,10 @@ def markdown(rows: list[dict], null_rows: list[dict], summary: dict, command: st
              "- by the weakest effect's size (effects only): " + ", ".join(
                  f"{band} {v['verdict_and_cause']:.0%} of {v['n']}"
                  for band, v in summary.get("accuracy_by_size", {}).items()),
+             "- by the weakest effect's size on the part the fitted inputs cannot absorb: "
+             + (", ".join(f"{band} {v['verdict_and_cause']:.0%} of {v['n']}"
+                          for band, v in summary.get("accuracy_by_unabsorbed_size", {}).items()
+                          if v["n"]) or "-"),
              "- confusion (truth → reported cause): " + "; ".join(
                  f"{f}: " + ", ".join(f"{c} {n}" for c, n in d.items())
                  for f, d in summary["confusion"].items()),
@@ -1049,9 +1132,9 @@ def markdown(rows: list[dict], null_rows: list[dict], summary: dict, command: st
              f"- crashes: {summary['crashes']} (goal 0)",
              "- mean wall time per diagnosis: " + ", ".join(
                  f"{b} {s:.0f} s" for b, s in summary["seconds"].items()), "",
-             "| case | scenario | truth | backend ÷ own sizing | verdict | cause (accepted) | "
-             "fitted | size error | CV(RMSE) before → after | s | status |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| case | scenario | truth | backend ÷ own sizing | unabsorbed × | verdict | "
+             "cause (accepted) | fitted | size error | CV(RMSE) before → after | s | status |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows + null_rows:
         errors = ", ".join("-" if e is None else f"{e:.0%}" for e in r["size_errors"]) or "-"
         mark = "✓" if r["cause_ok"] else "✗"
@@ -1059,6 +1142,7 @@ def markdown(rows: list[dict], null_rows: list[dict], summary: dict, command: st
         lines.append(
             f"| {r['case']} | {r['scenario']} | {r['truth']} | "
             f"{', '.join(f'{m:.2g}' for m in r.get('realised_multiple') or []) or '-'} | "
+            f"{', '.join(f'{m:.2g}' for m in r.get('unabsorbed_multiples') or [] if m is not None) or '-'} | "
             f"{r['verdict']} {mark} | "
             f"{r['reported']} ({', '.join(map(str, r['accepted'])) or '-'}{facade}) | "
             f"{r['fitted'] or '-'} | {errors} | {pct(r['cvrmse_before'])} → "

@@ -363,6 +363,26 @@ class _Stepper:
         self.emissivity_in = [s.emissivity_in for s in cell.opaque] + [cell.window.emissivity_in]
         self.dz = np.array([s.dz for s in cell.opaque] + [cell.window.dz])
         self.curves = [s.inside_curve for s in cell.opaque] + [cell.window.inside_curve]
+        # the inside faces' curves and emissivities as (n, faces) arrays: one numpy call per
+        # step for every face, not one per face
+        n_faces = len(self.curves)
+
+        def faces_array(values: list) -> np.ndarray:
+            return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (n,)) for v in values],
+                            axis=1).reshape(n, n_faces)
+
+        self.curve_c1 = faces_array([c.c1 for c in self.curves])
+        self.curve_c2 = faces_array([c.c2 for c in self.curves])
+        self.curve_c3 = faces_array([c.c3 for c in self.curves])
+        self.curve_lower = np.array([c.x_min for c in self.curves], dtype=float)
+        self.curve_upper = np.array([c.x_max for c in self.curves], dtype=float)
+        self.radiant_area = faces_array(self.emissivity_in) * self.opaque_areas / (
+            1 - self.opaque_areas / self.area_total[:, None])
+        # each node's pairs: the diagonal gains every pair conductance of its node
+        self.pair_incidence = np.zeros((len(network.pairs), network.size))
+        for column, (i, j) in enumerate(network.pairs):
+            self.pair_incidence[column, i] += 1.0
+            self.pair_incidence[column, j] += 1.0
         self.rhs_air = np.zeros((n, network.size, 2))
         self.rhs_air[:, network.AIR, 1] = 1.0
         self.energy: dict[str, np.ndarray] = {}
@@ -372,6 +392,31 @@ class _Stepper:
         self.dense = dense
         self.probe: FaceProbe | None = None
         self.first_step = 0       # index in the period of the day's first step
+        self._pad_chains()
+
+    def _pad_chains(self) -> None:
+        """The chains as one padded array, so each sweep step treats every chain at once.
+
+        Shorter chains are padded at their outside end with neutral nodes
+        (diagonal 1, no source, no link), which leave the sweep unchanged.
+        """
+        net = self.net
+        length = max(len(nodes) for nodes, _ in net.chains)
+        count = len(net.chains)
+        self.chain_nodes = np.full((count, length), net.size)      # net.size: the padding
+        self.chain_links = np.zeros((net.n, count, max(length - 1, 1)))
+        self.gap_link: tuple[int, int] | None = None
+        for c, (nodes, links) in enumerate(net.chains):
+            offset = length - len(nodes)
+            self.chain_nodes[c, offset:] = nodes
+            for position, link in enumerate(links):
+                if link is None:
+                    self.gap_link = (c, offset + position)
+                else:
+                    self.chain_links[:, c, offset + position] = link
+        real = self.chain_nodes < net.size
+        self.chain_real = np.nonzero(real)
+        self.chain_real_nodes = self.chain_nodes[real]
 
     def start(self, state: np.ndarray) -> None:
         air = state[:, self.net.AIR].copy()
@@ -450,25 +495,24 @@ class _Stepper:
         faces = net.inside + [net.pane_in]
         t_face = state[:, faces]                                    # (n, m)
         adjacent = t_air[:, None] + gradient[:, None] * self.dz[None, :]
-        g_pairs = []
-        strat = np.zeros((n, size))
         t_star = state[:, net.STAR] + KELVIN
         linear = 4 * SIGMA * t_star ** 3
-        for m, (face, curve) in enumerate(zip(faces, self.curves)):
-            h = np.maximum(curve(np.abs(t_face[:, m] - adjacent[:, m])), H_MIN)
-            area = self.opaque_areas[:, m]
-            g_conv = h * area
-            g_rad = linear * self.emissivity_in[m] * area / (1 - area / self.area_total)
-            g_pairs += [g_conv, g_rad]
-            offset = g_conv * gradient * self.dz[m]
-            strat[:, face] += offset
-            strat[:, net.AIR] -= offset
-        # The glazing gap (last pair).
+        x = np.clip(np.abs(t_face - adjacent), self.curve_lower, self.curve_upper)
+        h = np.maximum(self.curve_c1 + self.curve_c2 * x ** self.curve_c3, H_MIN)
+        g_conv = h * self.opaque_areas
+        offset = g_conv * gradient[:, None] * self.dz[None, :]
+        strat = np.zeros((n, size))
+        strat[:, faces] += offset
+        strat[:, net.AIR] -= offset.sum(axis=1)
+        # pairs: (face, air) and (face, star) of each face, then the glazing gap
+        g_pairs = np.empty((n, 2 * len(faces) + 1))
+        g_pairs[:, 0:-1:2] = g_conv
+        g_pairs[:, 1:-1:2] = linear[:, None] * self.radiant_area
         w = cell.window
         t_po, t_pi = state[:, net.pane_out], state[:, net.pane_in]
         gap = _gap_conductance(t_po, t_pi, w.emissivity_gap_out, w.emissivity_gap_in,
                                w.gap_thickness, pressure)
-        g_pairs.append(w.area / (1 / gap + w.pane_resistance))
+        g_pairs[:, -1] = w.area / (1 / gap + w.pane_resistance)
 
         # Outside faces: convection plus long-wave to sky, ground (at the air
         # temperature) and air; the ventilation air on the air node.
@@ -508,11 +552,7 @@ class _Stepper:
         c_dt = capacity / self.dt
         c_dt_state = c_dt * state
 
-        g_pairs = np.stack(g_pairs, axis=1)
-        diagonal = c_dt + net.static_diagonal
-        for column, (i, j) in enumerate(net.pairs):
-            diagonal[:, i] += g_pairs[:, column]
-            diagonal[:, j] += g_pairs[:, column]
+        diagonal = c_dt + net.static_diagonal + g_pairs @ self.pair_incidence
         for node, g in zip(net.diag_nodes, g_known):
             diagonal[:, node] += g
         rhs += c_dt_state + inputs["source"][:, k] + inputs["boundary"][:, k] + strat
@@ -584,44 +624,48 @@ class _Stepper:
         its inside node), so a forward sweep from its outside end leaves one
         equation in the two hub temperatures; the hubs solve as a 2x2 system
         and the chains back-substitute. Exact, and far cheaper than a dense
-        solve per instance.
+        solve per instance. The chains are swept together, padded to one
+        length (:meth:`_pad_chains`), and the unit response is a second
+        right-hand side of the same sweep.
         """
         net = self.net
         air, star = net.AIR, net.STAR
-        m_aa, m_ss = diagonal[:, air].copy(), diagonal[:, star].copy()
-        m_as = np.zeros_like(m_aa)
-        s_a, s_s = rhs[:, air].copy(), rhs[:, star].copy()
-        sweeps = []
-        for c, (nodes, links) in enumerate(net.chains):
-            links = [g_pairs[:, -1] if g is None else g for g in links]
-            d = [diagonal[:, nodes[0]]]
-            e = [rhs[:, nodes[0]]]
-            for p in range(1, len(nodes)):
-                f = links[p - 1] / d[p - 1]
-                d.append(diagonal[:, nodes[p]] - f * links[p - 1])
-                e.append(rhs[:, nodes[p]] + f * e[p - 1])
-            g_a, g_s = g_pairs[:, 2 * c], g_pairs[:, 2 * c + 1]
-            m_aa = m_aa - g_a * g_a / d[-1]
-            m_ss = m_ss - g_s * g_s / d[-1]
-            m_as = m_as + g_a * g_s / d[-1]
-            s_a = s_a + g_a * e[-1] / d[-1]
-            s_s = s_s + g_s * e[-1] / d[-1]
-            sweeps.append((nodes, links, d, e, g_a, g_s))
+        n = net.n
+        count, length = self.chain_nodes.shape
+        d = np.concatenate([diagonal, np.ones((n, 1))], axis=1)[:, self.chain_nodes]
+        e = np.concatenate([rhs, np.zeros((n, 1))], axis=1)[:, self.chain_nodes]
+        links = self.chain_links
+        if self.gap_link is not None:
+            links = links.copy()
+            links[:, self.gap_link[0], self.gap_link[1]] = g_pairs[:, -1]
+        for p in range(1, length):
+            f = links[:, :, p - 1] / d[:, :, p - 1]
+            d[:, :, p] -= f * links[:, :, p - 1]
+            e[:, :, p] += f * e[:, :, p - 1]
+        g_a, g_s = g_pairs[:, 0:2 * count:2], g_pairs[:, 1:2 * count:2]   # (n, chains)
+        inner_d, inner_e = d[:, :, -1], e[:, :, -1]
+        m_aa = diagonal[:, air] - np.sum(g_a * g_a / inner_d, axis=1)
+        m_ss = diagonal[:, star] - np.sum(g_s * g_s / inner_d, axis=1)
+        m_as = np.sum(g_a * g_s / inner_d, axis=1)
         det = m_aa * m_ss - m_as * m_as
-        free = np.empty((net.n, net.size))
-        unit = np.empty((net.n, net.size))
-        for out, (r_a, r_s, chain_rhs) in ((free, (s_a, s_s, True)),
-                                           (unit, (np.ones_like(s_a), np.zeros_like(s_s), False))):
-            t_a = (m_ss * r_a + m_as * r_s) / det
-            t_s = (m_as * r_a + m_aa * r_s) / det
-            out[:, air], out[:, star] = t_a, t_s
-            for nodes, links, d, e, g_a, g_s in sweeps:
-                t = ((e[-1] if chain_rhs else 0.0) + g_a * t_a + g_s * t_s) / d[-1]
-                out[:, nodes[-1]] = t
-                for p in range(len(nodes) - 2, -1, -1):
-                    t = ((e[p] if chain_rhs else 0.0) + links[p] * t) / d[p]
-                    out[:, nodes[p]] = t
-        return free, unit
+        # right-hand sides (n, 2): the free state, and the response to 1 W on the air
+        r_a = np.stack([rhs[:, air] + np.sum(g_a * inner_e / inner_d, axis=1), np.ones(n)],
+                       axis=1)
+        r_s = np.stack([rhs[:, star] + np.sum(g_s * inner_e / inner_d, axis=1), np.zeros(n)],
+                       axis=1)
+        t_a = (m_ss[:, None] * r_a + m_as[:, None] * r_s) / det[:, None]
+        t_s = (m_as[:, None] * r_a + m_aa[:, None] * r_s) / det[:, None]
+        sources = np.stack([e, np.zeros_like(e)], axis=3)             # (n, chains, length, 2)
+        t = np.empty((n, count, length, 2))
+        t[:, :, -1] = (sources[:, :, -1] + g_a[:, :, None] * t_a[:, None, :]
+                       + g_s[:, :, None] * t_s[:, None, :]) / inner_d[:, :, None]
+        for p in range(length - 2, -1, -1):
+            t[:, :, p] = (sources[:, :, p] + links[:, :, p, None] * t[:, :, p + 1]) \
+                / d[:, :, p, None]
+        solved = np.empty((n, net.size, 2))
+        solved[:, air], solved[:, star] = t_a, t_s
+        solved[:, self.chain_real_nodes] = t[:, self.chain_real[0], self.chain_real[1]]
+        return solved[..., 0], solved[..., 1]
 
     # Energy accounting (tests) ----------------------------------------
     def reset_energy(self, state: np.ndarray) -> None:
