@@ -646,8 +646,9 @@ def unabsorbed_shares(truth: Truth, base: Path, directory: Path, plain: np.ndarr
         now = float(values.get(parameter.name,
                                parameter.distribution.ppf(np.array([0.5]))[0]))
         moved = {**values, parameter.name: now + step if now + step <= high else now - step}
-        frame = _synth_clean(base, moved, output, directory / f"sens_{parameter.name}",
-                             truth.backend)
+        folder = directory / f"sensitivity_{parameter.name}"
+        folder.mkdir(parents=True, exist_ok=True)
+        frame = _synth_clean(base, moved, output, folder, truth.backend)
         columns.append((frame[output].to_numpy(dtype=float) - plain)[calibration])
     design = np.column_stack(columns)
     shares = []

@@ -271,3 +271,39 @@ def test_an_interrupted_run_is_scored_from_its_finished_rows(tmp_path, monkeypat
     # the null in the truths says none, the null dataset raised a false alarm
     assert figures["diagnose_random_false_alarm_rate"]["value"] == pytest.approx(0.5)
     assert (tmp_path / "bench" / "diagnosis_random.md").is_file()
+
+
+def test_an_effect_a_fitted_input_reproduces_is_fully_absorbed_and_a_wind_leak_is_not(tmp_path):
+    """The bench's unabsorbed share: 0 for a fitted input's own change, most of a wind leak.
+
+    Known answers: the change made by moving one of the inputs the diagnosis
+    fits by three times the sensitivity step (6 % of its range) lies in the
+    span of the sensitivity columns, up to the model's curvature over that
+    move; a wind-driven leak follows the wind, which no fitted input does.
+    """
+    from bpsflow.config import load_config
+    from bpsflow.diagnosis.fitting import parameter_range
+    from bpsflow.diagnosis.workflow import fitted_parameters
+
+    s = dr.WIND_LIMIT_SCENARIO
+    truth = dr.Truth(-1, "infiltration", "test_cell", "surrogate", s["start"], s["setpoint_c"],
+                     None, 0.0, 0, [])
+    base = dr.user_config(truth, tmp_path)
+    zone = dr.build_truth(truth).zone
+    leak = dr._infiltration_text("bench_leak", "bench_leak_always", zone,
+                                 {"A": 0.0, "B": 0.0, "C": 0.002, "D": 0.0})
+    plain, (with_leak,) = dr._plain_and_with(truth, base, tmp_path, [leak])
+    values = dr._truth_values(truth)
+    config = load_config(base)
+    fitted = fitted_parameters(config, config.diagnosis)[0]
+    low, high = parameter_range(fitted)
+    move = 0.06 * (high - low) * (1 if values[fitted.name] + 0.06 * (high - low) <= high else -1)
+    moved_folder = tmp_path / "moved"
+    moved_folder.mkdir()
+    output = config.diagnosis.output
+    moved = dr._synth_clean(base, {**values, fitted.name: values[fitted.name] + move}, output,
+                            moved_folder, "surrogate")[output].to_numpy(float)
+    input_share, leak_share = dr.unabsorbed_shares(truth, base, tmp_path, plain,
+                                                   [moved - plain, with_leak - plain])
+    assert input_share < 0.05
+    assert leak_share > 0.5

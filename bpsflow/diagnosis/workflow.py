@@ -647,8 +647,10 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
     fixed-b reference, share, amplitude and stable sign), Holm-adjusted over
     all variants at ``alpha``; steps into the parameters' allowed range must
     also fit most of it (:func:`_forward`: an extension cannot remove heat it
-    never added). Those that pass go on to the fitted, cross-validated acceptance
-    of :func:`_try_extensions`, which alone can make a verdict.
+    never added). When one passes, structure is found, and every candidate
+    goes on, as after a significant driver (:func:`candidate_causes`), to the
+    screen's ranking and the fitted, cross-validated acceptance of
+    :func:`_try_extensions`, which alone can make a verdict.
     """
     from bpsflow.diagnosis.structure import DriverTest, _test_one, holm
 
@@ -699,7 +701,10 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
     announce("  shape screen: " + (", ".join(
         f"{c.cause} (p {passed[id(c)][0]:.2g})" for c in called) if called
         else "no candidate's simulated shape is in the residuals"))
-    return called
+    # a shape found is structure found: every candidate then competes, as when a driver
+    # is significant (a west aperture half absorbed by the fitted glazing leaves an
+    # afternoon shape that a gain block matches better in the screen's test)
+    return candidates if called else []
 
 
 def _forward(design: np.ndarray, residual: np.ndarray) -> bool:
