@@ -1259,6 +1259,8 @@ def report(work: Path, rows: list[dict], null_rows: list[dict]) -> dict:
     record(f"diagnose_random_accuracy{suffix}", summary["accuracy"], "share", ">= 0.90", command,
            per_family=summary["per_family"], confusion=summary["confusion"],
            aperture_facade_right=summary["aperture_facade_right"],
+           by_weakest_effect_size=summary["accuracy_by_size"],
+           by_weakest_unabsorbed_multiple=summary["accuracy_by_unabsorbed_size"],
            unsupported=summary["unsupported"], **extra)
     record(f"diagnose_random_size_error_3x{suffix}", summary["median_size_error_3x"], "relative",
            "<= 0.15 (median, effects >= 3x the detection limit)", command,
