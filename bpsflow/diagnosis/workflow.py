@@ -1091,7 +1091,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         flat_fitted.append(flat[i])
     fits = context.fit(union, f"round{round_number}", problems)
     again = []
-    for i, problem, fit in zip(selected, list(problems), list(fits)):
+    for i, problem, fit in zip(selected, problems, fits):
         from_screen = {**(problem.start or {}), **screen_starts[i]}
         reached = (np.inf if fit.failed else
                    comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters)))

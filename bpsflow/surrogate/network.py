@@ -362,20 +362,19 @@ class _Stepper:
         self.area_total = self.opaque_areas.sum(axis=1)
         self.emissivity_in = [s.emissivity_in for s in cell.opaque] + [cell.window.emissivity_in]
         self.dz = np.array([s.dz for s in cell.opaque] + [cell.window.dz])
-        self.curves = [s.inside_curve for s in cell.opaque] + [cell.window.inside_curve]
+        curves = [s.inside_curve for s in cell.opaque] + [cell.window.inside_curve]
         # the inside faces' curves and emissivities as (n, faces) arrays: one numpy call per
         # step for every face, not one per face
-        n_faces = len(self.curves)
 
         def faces_array(values: list) -> np.ndarray:
             return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (n,)) for v in values],
-                            axis=1).reshape(n, n_faces)
+                            axis=1)
 
-        self.curve_c1 = faces_array([c.c1 for c in self.curves])
-        self.curve_c2 = faces_array([c.c2 for c in self.curves])
-        self.curve_c3 = faces_array([c.c3 for c in self.curves])
-        self.curve_lower = np.array([c.x_min for c in self.curves], dtype=float)
-        self.curve_upper = np.array([c.x_max for c in self.curves], dtype=float)
+        self.curve_c1 = faces_array([c.c1 for c in curves])
+        self.curve_c2 = faces_array([c.c2 for c in curves])
+        self.curve_c3 = faces_array([c.c3 for c in curves])
+        self.curve_lower = np.array([c.x_min for c in curves], dtype=float)
+        self.curve_upper = np.array([c.x_max for c in curves], dtype=float)
         self.radiant_area = faces_array(self.emissivity_in) * self.opaque_areas / (
             1 - self.opaque_areas / self.area_total[:, None])
         # each node's pairs: the diagonal gains every pair conductance of its node
