@@ -371,6 +371,74 @@ def test_loss_difference_null_rejection_rate():
     assert rejection_rate(lags=0, reference="normal") > bound
 
 
+def _evening_change(n: int, size: float = 1.0) -> np.ndarray:
+    """A change acting 15 of every 168 hours: 17–20 h on weekdays, like an evening gain."""
+    hours = np.arange(n)
+    return size * (((hours % 24) >= 17) & ((hours % 24) < 20) & ((hours // 24) % 7 < 5))
+
+
+def test_encompassing_test_matches_ols_on_the_change():
+    n, lags = 840, 30
+    noise = ar1_noise(11, n=n, phi=0.8)
+    change = _evening_change(n, 2.0) + 0.3 * ar1_noise(12, n=n, phi=0.5)
+    before = 0.8 * change + noise
+    after = before - change
+    reference = sm.OLS(before, sm.add_constant(change)).fit(
+        cov_type="HAC", cov_kwds={"maxlags": lags, "use_correction": True})
+    t_against_zero = comparison.encompassing_test(before, after, weight=0.0, lags=lags,
+                                                   reference="normal")
+    assert t_against_zero["slope"] == pytest.approx(reference.params[1], rel=1e-10)
+    assert t_against_zero["statistic"] == pytest.approx(reference.tvalues[1], rel=1e-10)
+    assert t_against_zero["p_value"] == pytest.approx(reference.pvalues[1] / 2, rel=1e-8)
+    fixed = comparison.encompassing_test(before, after, lags=lags)
+    t_half = (reference.params[1] - 0.5) / reference.bse[1]
+    b = (lags + 1) / n
+    assert fixed["p_value"] == pytest.approx(
+        stats.t.sf(t_half / np.sqrt(np.exp(b)), np.ceil(1.5 / b)), rel=1e-9)
+    # a weight of 1/2 is where the squared loss stops improving (means apart)
+    half = 0.5 * change + noise
+    gain = np.mean(half ** 2) - np.mean((half - change) ** 2)
+    slope = comparison.encompassing_test(half, half - change)["slope"]
+    assert gain == pytest.approx((2 * slope - 1) * np.var(change)
+                                 + 2 * half.mean() * change.mean() - change.mean() ** 2,
+                                 rel=1e-9)
+    # a change that is zero everywhere carries nothing
+    assert comparison.encompassing_test(before, before)["p_value"] == 1.0
+
+
+def test_encompassing_test_keeps_its_size_and_finds_a_sparse_effect():
+    n, seeds = 840, 200   # five weeks of out-of-fold hours
+    bound = stats.binom.ppf(0.99, seeds, 0.05) / seeds
+    change = _evening_change(n) + 0.5 * ar1_noise(7, n=n, phi=0.9)
+
+    def rejection_rate(**kwargs) -> float:
+        rejected = 0
+        for seed in range(seeds):
+            # on the null's edge: the change removes half of what it touches (λ = 1/2)
+            before = 0.5 * change + ar1_noise(2000 + seed, n=n, phi=0.9)
+            rejected += comparison.encompassing_test(before, before - change, **kwargs)[
+                "p_value"] < 0.05
+        return rejected / seeds
+
+    for lags in (None, 24):   # the default window, and the diagnosis's one day
+        rate = rejection_rate(lags=lags)
+        print(f"encompassing test, {lags} lags, null rejection at 5 %: {rate:.3f} "
+              f"(bound {bound:.3f})")
+        assert rate <= bound
+    # the test can fail: white-noise variance with normal quantiles rejects far too often
+    assert rejection_rate(lags=0, reference="normal") > bound
+    # an evening effect of 1.5 noise standard deviations, 15 hours a week, fully removed
+    found = {"encompassing": 0, "loss difference": 0}
+    for seed in range(40):
+        noise = ar1_noise(3000 + seed, n=n, phi=0.9)
+        before, after = noise + _evening_change(n, 1.5), noise
+        found["encompassing"] += comparison.encompassing_test(before, after)["p_value"] < 0.05
+        found["loss difference"] += comparison.loss_difference_test(
+            before, after, loss="absolute", lags=24)["p_value"] < 0.05
+    print(f"sparse effect found in 40 series: {found}")
+    assert found["encompassing"] >= 38 and found["encompassing"] >= found["loss difference"]
+
+
 def test_bic_closed_form_and_statsmodels():
     residuals = np.array([1.0, -1.0, 2.0, -2.0])
     assert comparison.bic(residuals, 2) == pytest.approx(4 * np.log(10 / 4) + 2 * np.log(4))

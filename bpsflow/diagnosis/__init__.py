@@ -7,7 +7,7 @@ Modules, one concept each:
   the time axis and extra measured columns;
 * :mod:`~bpsflow.diagnosis.structure` — tests of residual structure per driver
   (HAC errors, multiple testing, effect size, blocked folds, whiteness);
-* :mod:`~bpsflow.diagnosis.comparison` — held-out loss-difference test and BIC;
+* :mod:`~bpsflow.diagnosis.comparison` — out-of-fold encompassing and loss-difference tests, BIC;
 * :mod:`~bpsflow.diagnosis.fitting` — fitting parameters on either backend, scores;
 * :mod:`~bpsflow.diagnosis.signatures` — characteristic signatures of parameters;
 * :mod:`~bpsflow.diagnosis.extensions` — candidate model extensions (IDF objects);

@@ -14,10 +14,12 @@ diagnosis (its last days) is the last fold, so the fit on the calibration
 hours *is* that fold's fit and its out-of-fold errors are the held-out ones.
 A remainder shorter than half a fold joins the block before it.
 
-The errors of the two models are compared by the Diebold–Mariano test with
-a Newey–West variance and the fixed-b reference
-(:func:`bpsflow.diagnosis.comparison.loss_difference_test`) over all
-out-of-fold hours in time order.
+The errors of the two models are compared over all out-of-fold hours in
+time order by a forecast-encompassing test (does the change of prediction
+explain the errors before it?) with a Newey–West variance and the fixed-b
+reference (:func:`bpsflow.diagnosis.comparison.encompassing_test`), which
+decides; the Diebold–Mariano test of the mean loss
+(:func:`bpsflow.diagnosis.comparison.loss_difference_test`) is reported.
 """
 
 from __future__ import annotations

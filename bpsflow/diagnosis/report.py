@@ -295,13 +295,16 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
         lines += ["", "## Candidate extensions", "",
                   "Ranked per round by BIC on the calibration hours; the best "
                   f"{settings_of(d.base.config).cv_candidates} are cross-validated over "
-                  "whole-week folds (out-of-fold CV(RMSE), loss-difference p).", "",
+                  "whole-week folds (out-of-fold CV(RMSE); encompassing p, which decides; "
+                  "loss-difference p, reported).", "",
                   "| round | rank | cause | driver | fitted | out-of-fold CV(RMSE) before → after "
-                  "| held-out CV(RMSE) before → after | loss-difference p | BIC before → after "
+                  "| held-out CV(RMSE) before → after | encompassing p (loss-difference p) "
+                  "| BIC before → after "
                   "| accepted |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for e in d.extensions:
-            h, cv, test = e["heldout"], e.get("cross_validation"), e.get("loss_difference")
+            h, cv, test = e["heldout"], e.get("cross_validation"), e.get("encompassing")
+            loss = e.get("loss_difference")
             fitted = e.get("law") or ", ".join(f"{k} = {v:.4g}" for k, v in e["fitted"].items())
             lines.append(
                 f"| {e['round']} | {e.get('rank', '-')} | {_extension_label(e)} | {e['driver']} "
@@ -309,6 +312,7 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
                 + (f"{cv['cvrmse_before']:.2%} → {cv['cvrmse_after']:.2%}" if cv else "-")
                 + f" | {h['before']['cvrmse']:.2%} → {h['after']['cvrmse']:.2%} | "
                 + (f"{test['p_value']:.2g}" if test else "-")
+                + (f" ({loss['p_value']:.2g})" if loss else "")
                 + f" | {e['bic']['before']:.0f} → "
                 + (f"{e['bic']['after']:.0f}" if e["bic"]["after"] is not None
                    else f"(screen {e.get('screen_bic', float('nan')):.0f})")

@@ -101,8 +101,8 @@ class DiagnosisSettings(BaseModel):
     verdict only if its BIC is lower by this margin (Kass & Raftery 1995:
     above 6, strong evidence), so a tie goes to the existing input.
 
-    ``gain_alpha`` is the one-sided level of the held-out loss-difference
-    test an extension must pass (besides a lower BIC and a lower held-out
+    ``gain_alpha`` is the one-sided level of the out-of-fold
+    forecast-encompassing test an extension must pass (besides a lower BIC and a lower held-out
     CV(RMSE)) to be accepted.
     """
 

@@ -252,9 +252,45 @@ def _block_consistent(y: np.ndarray, regressors: np.ndarray, full_component: np.
     return len(agree) >= min(2, folds) and all(agree)
 
 
+#: A fold whose given shape varies less than this share of the folds' mean variance is
+#: not asked for its sign (:func:`_component_consistent`).
+QUIET_FOLD_SHARE = 0.1
+
+
+def _component_consistent(y: np.ndarray, full_component: np.ndarray, folds: int) -> bool:
+    """Same direction in every contiguous fold: the residual's slope on the full fit there.
+
+    One degree of freedom per fold, for a regressor whose shape is given (a
+    simulated effect), not fitted from a flexible basis: refitting several
+    nearly collinear columns of one physical effect on a week of noisy data
+    can turn the fold's own combination around while the shape itself still
+    explains that week. A fold where the shape moves less than
+    ``QUIET_FOLD_SHARE`` of the folds' mean variance is skipped: the effect
+    barely acts there (a week whose heating is off at the effect's hours), so
+    its sign is the noise's.
+    """
+    blocks = np.array_split(np.arange(len(y)), folds)
+    variances = np.array([np.var(full_component[block]) for block in blocks])
+    agree = []
+    for block, variance in zip(blocks, variances):
+        target = full_component[block]
+        if len(block) <= 2 or variance <= QUIET_FOLD_SHARE * variances.mean():
+            continue
+        centred = target - target.mean()
+        agree.append(bool(centred @ (y[block] - y[block].mean()) > 0))
+    return len(agree) >= min(2, folds) and all(agree)
+
+
 def _test_one(name: str, y: np.ndarray, regressors: pd.DataFrame, driver: np.ndarray, *,
-              folds: int, hac_lags: int | None, reference: str) -> DriverTest | None:
-    """The unadjusted test of one driver; None when its basis does not vary here."""
+              folds: int, hac_lags: int | None, reference: str,
+              consistency: str = "refit") -> DriverTest | None:
+    """The unadjusted test of one driver; None when its basis does not vary here.
+
+    ``consistency``: ``"refit"`` refits the basis on each fold
+    (:func:`_block_consistent`, for a driver's flexible basis); ``"component"``
+    checks the full fit's own shape on each fold (:func:`_component_consistent`,
+    for a given physical shape).
+    """
     import statsmodels.api as sm
 
     group = driver_group(name)
@@ -283,7 +319,8 @@ def _test_one(name: str, y: np.ndarray, regressors: pd.DataFrame, driver: np.nda
     amplitude = float(np.std(component))
     covariance = float(np.cov(component, driver)[0, 1]) if np.std(driver) > 0 else 0.0
     direction = int(np.sign(covariance)) if amplitude > 0 else 0
-    consistent = _block_consistent(y, values, component, folds)
+    consistent = (_component_consistent(y, component, folds) if consistency == "component"
+                  else _block_consistent(y, values, component, folds))
     return DriverTest(name=name, group=group, p_value=p_value, p_adjusted=p_value, share=share,
                       amplitude=amplitude, direction=direction, sign_consistent=consistent,
                       significant=False,

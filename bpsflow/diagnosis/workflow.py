@@ -29,8 +29,8 @@ Four steps (DESIGN.md §8; seed §1.1.1.1, §2.1, §4.3.1):
    terms then chosen by BIC, :func:`_choose_terms`; a gain block's edges
    refined). A cause is accepted when, over whole-week folds of the whole
    period (:mod:`bpsflow.diagnosis.crossval`), its out-of-fold errors are
-   significantly smaller than the current model's (Diebold–Mariano, HAC,
-   fixed-b), its BIC is lower and its out-of-fold CV(RMSE) is lower; the
+   explained by the cause's change of prediction (a forecast-encompassing
+   test, HAC, fixed-b), its BIC is lower and its out-of-fold CV(RMSE) is lower; the
    accepted cause with the lowest BIC becomes the model, and its runner-up
    and their BIC difference are reported. The extended model is diagnosed
    again (a law already in it re-opened with all its terms free), until
@@ -84,8 +84,8 @@ from bpsflow.simulation.ensemble import BatchFailure
 
 Announce = Callable[[str], None]
 
-#: Newey–West lags of the held-out loss-difference test: one day. With the
-#: fixed-b reference the size holds for any window; a day keeps it (4.8 % at
+#: Newey–West lags of the out-of-fold tests (encompassing, loss difference): one
+#: day. With the fixed-b reference the size holds for any window; a day keeps it (4.8 % at
 #: the 5 % level for AR(1) errors with φ = 0.8 over a held-out week, 7.6 % at
 #: φ = 0.95; 1000 series each) while the default window (half the week) leaves
 #: the t reference 3 degrees of freedom and rejects even a 20-fold gain.
@@ -677,7 +677,7 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
             design = design - controls @ np.linalg.lstsq(controls, design, rcond=None)[0]
         frame = pd.DataFrame(design, columns=[p.name for p in variant[1]])
         test = _test_one(candidate.cause, y, frame, design[:, 0], folds=settings.folds,
-                         hac_lags=None, reference="fixed-b")
+                         hac_lags=None, reference="fixed-b", consistency="component")
         if test is not None:
             tested.append((position, test, _forward(design, y)))
     adjusted = holm([test.p_value for _, test, _ in tested]) if tested else np.zeros(0)
@@ -689,6 +689,8 @@ def _shape_screen(context: _Context, result: Diagnosis, current: Model, tests: l
                   and test.amplitude >= min_amplitude and test.sign_consistent and forward)
         record.append({"cause": flat[i][0].cause, "parameters": [p.name for p in flat[i][1][1]],
                        "p_adjusted": float(p_adjusted), "share": float(test.share),
+                       "amplitude": float(test.amplitude),
+                       "sign_consistent": bool(test.sign_consistent),
                        "forward": forward, "passed": ok})
         key = id(flat[i][0])
         if ok and (key not in passed or p_adjusted < passed[key][0]):
@@ -1040,8 +1042,9 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     then chosen by BIC, :func:`_choose_terms`). The causes are ranked by BIC on
     the calibration hours; the ``cv_candidates`` best are cross-validated
     over the whole period (:mod:`bpsflow.diagnosis.crossval`), and a cause
-    passes when its out-of-fold errors are significantly smaller
-    (Diebold–Mariano, fixed-b), its BIC is lower and its out-of-fold CV(RMSE)
+    passes when its change of the out-of-fold prediction explains the
+    current model's out-of-fold errors (:func:`comparison.encompassing_test`,
+    fixed-b, at ``gain_alpha``), its BIC is lower and its out-of-fold CV(RMSE)
     is lower than ``current``'s.
     """
     d, settings = context.data, context.settings
@@ -1179,9 +1182,11 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                              "after": _short(after["heldout"])},
                  "calibration": {"before": _short(before["calibration"]),
                                  "after": _short(after["calibration"])},
-                 "cross_validation": ({k: v for k, v in cv.items() if k != "test"} if cv
+                 "cross_validation": ({k: v for k, v in cv.items()
+                                       if k not in ("test", "loss_difference")} if cv
                                       else None),
-                 "loss_difference": test or None,
+                 "encompassing": test or None,
+                 "loss_difference": cv["loss_difference"] if cv else None,
                  "bic": {"before": bic_before, "after": bics[index]},
                  "passed": passed, "iterations": fit.iterations,
                  **({"at_zero": True, "improves_fit": improves} if at_zero else {}),
@@ -1199,7 +1204,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         announce(f"  {candidate.cause}: {_fitted_text(entry['fitted'])}; BIC {bic_before:.1f} "
                  f"-> {bics[index]:.1f}" + (
                      f"; out-of-fold CV(RMSE) {cv['cvrmse_before']:.3%} -> "
-                     f"{cv['cvrmse_after']:.3%}, p = {test['p_value']:.3g}" if cv else
+                     f"{cv['cvrmse_after']:.3%}, encompassing p = {test['p_value']:.3g}" if cv else
                      " (not cross-validated: ranked below the best "
                      f"{settings.cv_candidates})")
                  + f": {'passes' if passed else 'rejected'}"
@@ -1212,7 +1217,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                          "driver": candidate.driver, "round": round_number, "rank": None,
                          "fitted": {}, "heldout": _unchanged(before),
                          "calibration": None, "cross_validation": None,
-                         "loss_difference": None,
+                         "encompassing": None, "loss_difference": None,
                          "bic": {"before": bic_before, "after": None},
                          "passed": False, "screened_out": True, **variant[2]}, None))
     return out
@@ -1462,8 +1467,10 @@ def _cross_validate(context: _Context, union: Config, union_sample: dict, curren
     -------
     dict
         Index in ``models`` -> ``folds``, ``cvrmse_before``, ``cvrmse_after``
-        (out-of-fold, all hours) and ``test`` (Diebold–Mariano on the
-        absolute out-of-fold errors, HAC over one day).
+        (out-of-fold, all hours), ``test`` (the forecast-encompassing test
+        of the out-of-fold errors, which decides) and ``loss_difference``
+        (Diebold–Mariano on the absolute out-of-fold errors, HAC over one
+        day: whether the model predicts better on average, reported).
     """
     d, settings = context.data, context.settings
     if not models:
@@ -1497,13 +1504,14 @@ def _cross_validate(context: _Context, union: Config, union_sample: dict, curren
     mean = float(np.mean(d.y))
     out = {}
     for index, prediction in enumerate(predictions):
-        test = comparison.loss_difference_test(d.y - base, d.y - prediction,
-                                               loss="absolute", lags=HELDOUT_LAGS)
+        test = comparison.encompassing_test(d.y - base, d.y - prediction, lags=HELDOUT_LAGS)
+        loss_difference = comparison.loss_difference_test(d.y - base, d.y - prediction,
+                                                          loss="absolute", lags=HELDOUT_LAGS)
         out[index] = {"folds": last + 1, "days_per_fold": settings.days_per_fold,
                       "cvrmse_before": float(np.sqrt(np.mean((d.y - base) ** 2)) / abs(mean)),
                       "cvrmse_after": float(np.sqrt(np.mean((d.y - prediction) ** 2))
                                             / abs(mean)),
-                      "test": test}
+                      "test": test, "loss_difference": loss_difference}
     return out
 
 
