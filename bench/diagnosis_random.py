@@ -813,6 +813,39 @@ def _relative(fitted: float, true: float) -> float:
     return abs(fitted - true) / abs(true) if true else float("nan")
 
 
+def _week_mask(day_flags: tuple[int, ...], start_hour: int, end_hour: int) -> np.ndarray:
+    """Hours of a week (7 × 24, Monday first) an on/off block is on."""
+    hours = np.arange(24)
+    return np.outer(np.asarray(day_flags, dtype=bool), (hours >= start_hour) & (hours < end_hour))
+
+
+def _truth_day_flags(days: str) -> tuple[int, ...]:
+    names = list(DAY_SETS)[3:]
+    return tuple(int(days == "all days" or (days == "weekdays" and i < 5)
+                     or (days == "weekends" and i >= 5) or days == names[i]) for i in range(7))
+
+
+def _stacked_gain_w(entries: list[dict], size: dict) -> float:
+    """The mean gain several accepted blocks add over the true gain's hours (W).
+
+    A gain split by the diagnosis into blocks (two overlapping blocks of
+    different radiant fraction, or neighbouring hours) is one effect: each
+    block's W counts over the true hours it covers.
+    """
+    from bpsflow.diagnosis.extensions import DAY_TYPES
+
+    truth = _week_mask(_truth_day_flags(size["days"]), size["start_hour"], size["end_hour"])
+    stacked = np.zeros((7, 24))
+    for entry in entries:
+        block, watts = entry.get("schedule") or {}, (entry.get("fitted") or {}).get(
+            SIZE_KEYS["gain"][0])
+        if watts is None or "day_type" not in block:
+            continue
+        stacked += float(watts) * _week_mask(DAY_TYPES[block["day_type"]], block["start_hour"],
+                                             block["end_hour"])
+    return float(stacked[truth].mean()) if truth.any() else float("nan")
+
+
 def size_errors(built: Built, accepted: list[dict]) -> list[float | None]:
     """Relative size error of each true effect; ``None`` where not comparable.
 
@@ -820,7 +853,8 @@ def size_errors(built: Built, accepted: list[dict]) -> list[float | None]:
     infiltration law compares the mean added flow over the evaluated hours
     (fitted terms vs true terms), so that a law fitted with other terms is
     still measured, and only when every fitted infiltration parameter is a
-    known term.
+    known term. Several accepted gain blocks are one gain: their W over the
+    true hours each covers (:func:`_stacked_gain_w`).
     """
     errors: list[float | None] = []
     for size in built.sizes:
@@ -839,6 +873,9 @@ def size_errors(built: Built, accepted: list[dict]) -> list[float | None]:
                 continue
             flow = sum(float(v) * size["mean_drivers"][by_key[k]] for k, v in fitted.items())
             errors.append(_relative(flow, size["mean_flow_m3s"]))
+            continue
+        if family == "gain" and len(mine) > 1:
+            errors.append(_relative(_stacked_gain_w(mine, size), size["W"]))
             continue
         key = next((k for k in SIZE_KEYS[family] if k in fitted), None)
         true = size["W"] if family == "gain" else size["m2"]

@@ -307,3 +307,20 @@ def test_an_effect_a_fitted_input_reproduces_is_fully_absorbed_and_a_wind_leak_i
                                                    [moved - plain, with_leak - plain])
     assert input_share < 0.05
     assert leak_share > 0.5
+
+
+def test_gain_blocks_accepted_together_are_scored_as_one_gain_over_the_true_hours():
+    truth = {"family": "gain", "W": 300.0, "days": "weekdays", "start_hour": 17,
+             "end_hour": 20}
+    convective = {"name": "internal_gain_schedule", "fitted": {"scheduled_gain_w": 200.0},
+                  "schedule": {"day_type": "weekdays", "start_hour": 17, "end_hour": 20}}
+    radiant = {"name": "internal_gain_schedule", "fitted": {"scheduled_gain_w": 90.0},
+               "schedule": {"day_type": "weekdays", "start_hour": 17, "end_hour": 20}}
+    weekend = {"name": "internal_gain_schedule", "fitted": {"scheduled_gain_w": 500.0},
+               "schedule": {"day_type": "weekends", "start_hour": 17, "end_hour": 20}}
+    assert dr._stacked_gain_w([convective, radiant], truth) == pytest.approx(290.0)
+    # a block on days the gain is off adds nothing to it; one on a third of its hours, a third
+    assert dr._stacked_gain_w([convective, weekend], truth) == pytest.approx(200.0)
+    one_hour = {**radiant, "schedule": {"day_type": "weekdays", "start_hour": 19,
+                                        "end_hour": 21}}
+    assert dr._stacked_gain_w([convective, one_hour], truth) == pytest.approx(230.0)
