@@ -819,10 +819,8 @@ def _week_mask(day_flags: tuple[int, ...], start_hour: int, end_hour: int) -> np
     return np.outer(np.asarray(day_flags, dtype=bool), (hours >= start_hour) & (hours < end_hour))
 
 
-def _truth_day_flags(days: str) -> tuple[int, ...]:
-    names = list(DAY_SETS)[3:]
-    return tuple(int(days == "all days" or (days == "weekdays" and i < 5)
-                     or (days == "weekends" and i >= 5) or days == names[i]) for i in range(7))
+#: A week from Monday to Sunday, to lay a drawn gain's schedule on.
+_ONE_WEEK = [date(2024, 1, 1) + timedelta(days=i) for i in range(7)]
 
 
 def _stacked_gain_w(entries: list[dict], size: dict) -> float:
@@ -834,7 +832,7 @@ def _stacked_gain_w(entries: list[dict], size: dict) -> float:
     """
     from bpsflow.diagnosis.extensions import DAY_TYPES
 
-    truth = _week_mask(_truth_day_flags(size["days"]), size["start_hour"], size["end_hour"])
+    truth = _gain_schedule_values(size, _ONE_WEEK[0].year, _ONE_WEEK).reshape(7, 24) > 0
     stacked = np.zeros((7, 24))
     for entry in entries:
         block, watts = entry.get("schedule") or {}, (entry.get("fitted") or {}).get(

@@ -33,6 +33,34 @@ def _loss(errors: np.ndarray, loss: str) -> np.ndarray:
     raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
 
 
+def _paired(errors_before: np.ndarray, errors_after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two models' errors at the hours where both are finite, in time order."""
+    before = np.asarray(errors_before, dtype=float).ravel()
+    after = np.asarray(errors_after, dtype=float).ravel()
+    if before.shape != after.shape:
+        raise ValueError(f"errors_before and errors_after differ in length "
+                         f"({before.size} and {after.size})")
+    keep = np.isfinite(before) & np.isfinite(after)
+    return before[keep], after[keep]
+
+
+def _one_sided_p(statistic: float, lags: int, n: int, reference: str) -> float:
+    """Upper-tail p of a Newey–West (Bartlett) t statistic: fixed-b or normal reference.
+
+    Fixed-b: ``t / sqrt(κ) ~ t(K)`` with ``b = (L + 1)/n``, ``κ = exp(b)``,
+    ``K = ⌈3/(2b)⌉`` (the q = 1 case of
+    :func:`bpsflow.diagnosis.structure.fixed_b_pvalue`).
+    """
+    if reference == "fixed-b":
+        b = (lags + 1) / n
+        kappa = math.exp(b * _BARTLETT_C1)
+        dof = max(math.ceil(1.0 / (b * _BARTLETT_C2)), 1)
+        return float(stats.t.sf(statistic / math.sqrt(kappa), dof))
+    if reference == "normal":
+        return float(stats.norm.sf(statistic))
+    raise ValueError(f"reference must be 'fixed-b' or 'normal', got {reference!r}")
+
+
 def loss_difference_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
                          loss: str = "squared", lags: int | None = None,
                          reference: str = "fixed-b") -> dict:
@@ -85,13 +113,8 @@ def loss_difference_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
         (DM), ``p_value`` (one-sided), ``lags``, ``n``, ``loss``,
         ``reference``.
     """
-    before = np.asarray(errors_before, dtype=float).ravel()
-    after = np.asarray(errors_after, dtype=float).ravel()
-    if before.shape != after.shape:
-        raise ValueError(f"errors_before and errors_after differ in length "
-                         f"({before.size} and {after.size})")
-    keep = np.isfinite(before) & np.isfinite(after)
-    difference = _loss(before[keep], loss) - _loss(after[keep], loss)
+    before, after = _paired(errors_before, errors_after)
+    difference = _loss(before, loss) - _loss(after, loss)
     n = difference.size
     if n < 3:
         raise ValueError(f"the loss-difference test needs at least 3 paired errors, got {n}")
@@ -109,15 +132,7 @@ def loss_difference_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
         statistic = math.copysign(math.inf, mean_difference) if mean_difference else 0.0
     else:
         statistic = mean_difference / math.sqrt(long_run / n)
-    if reference == "fixed-b":
-        b = (lags + 1) / n
-        kappa = math.exp(b * _BARTLETT_C1)
-        dof = max(math.ceil(1.0 / (b * _BARTLETT_C2)), 1)
-        p_value = float(stats.t.sf(statistic / math.sqrt(kappa), dof))
-    elif reference == "normal":
-        p_value = float(stats.norm.sf(statistic))
-    else:
-        raise ValueError(f"reference must be 'fixed-b' or 'normal', got {reference!r}")
+    p_value = _one_sided_p(statistic, lags, n, reference)
     return {"mean_difference": mean_difference, "statistic": float(statistic),
             "p_value": p_value, "lags": int(lags), "n": int(n), "loss": loss,
             "reference": reference}
@@ -176,13 +191,8 @@ def encompassing_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
     """
     import statsmodels.api as sm
 
-    before = np.asarray(errors_before, dtype=float).ravel()
-    after = np.asarray(errors_after, dtype=float).ravel()
-    if before.shape != after.shape:
-        raise ValueError(f"errors_before and errors_after differ in length "
-                         f"({before.size} and {after.size})")
-    keep = np.isfinite(before) & np.isfinite(after)
-    before, change = before[keep], before[keep] - after[keep]
+    before, after = _paired(errors_before, errors_after)
+    change = before - after
     n = before.size
     if n < 4:
         raise ValueError(f"the encompassing test needs at least 4 paired errors, got {n}")
@@ -199,15 +209,7 @@ def encompassing_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
                                      cov_kwds={"maxlags": lags, "use_correction": True})
     slope = float(ols.params[1])
     statistic = (slope - weight) / float(ols.bse[1])
-    if reference == "fixed-b":
-        b = (lags + 1) / n
-        kappa = math.exp(b * _BARTLETT_C1)
-        dof = max(math.ceil(1.0 / (b * _BARTLETT_C2)), 1)
-        p_value = float(stats.t.sf(statistic / math.sqrt(kappa), dof))
-    elif reference == "normal":
-        p_value = float(stats.norm.sf(statistic))
-    else:
-        raise ValueError(f"reference must be 'fixed-b' or 'normal', got {reference!r}")
+    p_value = _one_sided_p(statistic, lags, n, reference)
     return {"slope": slope, "weight": weight, "statistic": statistic, "p_value": p_value,
             "lags": int(lags), "n": int(n), "reference": reference}
 
