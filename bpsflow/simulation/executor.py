@@ -79,20 +79,57 @@ def _with_shared(function: Callable[..., Any], key: str, shared: bytes, stop: st
     return function(*_SHARED[key], *task)
 
 
+class _InterruptSeen:
+    """Ctrl-C, remembered: the KeyboardInterrupt a signal raises is lost when it lands in a
+    finalizer (a Dask future's ``__del__`` on the main thread prints it and goes on), so the
+    outcome loop also checks this flag and raises it again at the next completed task."""
+
+    seen = False
+
+    @classmethod
+    def handler(cls, signum: int, frame: Any) -> None:
+        cls.seen = True
+        raise KeyboardInterrupt
+
+    @classmethod
+    @contextlib.contextmanager
+    def watching(cls) -> Generator[None, None, None]:
+        import threading
+
+        if threading.current_thread() is not threading.main_thread() \
+                or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            yield
+            return
+        cls.seen = False
+        signal.signal(signal.SIGINT, cls.handler)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    @classmethod
+    def raise_if_seen(cls) -> None:
+        if cls.seen:
+            raise KeyboardInterrupt
+
+
 def _outcomes(completed: Iterable[Any], futures: dict[Any, tuple[Any, ...]],
               on_error: ErrorHandler | None) -> Generator[Any, None, None]:
     """Each completed future's result, or ``on_error(task, exception)`` for one that failed (a
     worker that died: loky's TerminatedWorkerError, Dask's KilledWorker); the future leaves
     ``futures`` as it completes, so what is left there never ran to the end."""
-    for future in completed:
-        task = futures.pop(future)
-        try:
-            result = future.result()
-        except Exception as exc:
-            if on_error is None:
-                raise
-            result = on_error(task, exc)
-        yield result
+    with _InterruptSeen.watching():
+        for future in completed:
+            _InterruptSeen.raise_if_seen()
+            task = futures.pop(future)
+            try:
+                result = future.result()
+            except Exception as exc:
+                if on_error is None:
+                    raise
+                result = on_error(task, exc)
+            yield result
+        _InterruptSeen.raise_if_seen()
 
 
 def _remove_stale_stops(stop: Path) -> None:
