@@ -139,13 +139,18 @@ def test_cli_null_case_writes_the_contract_and_invents_no_cause(surrogate_base, 
 
 @pytest.mark.slow
 def test_false_model_form_verdicts_stay_rare_over_null_datasets(surrogate_base, tmp_path):
-    """20 null datasets (different noise seeds, AR(1) noise): ≤ 10 % false model_form."""
+    """12 null datasets (different noise seeds, AR(1) noise): at most 2 false model_form.
+
+    The size itself is measured over 40 nulls by the benchmark
+    (``bench/diagnosis_bench.py --random``); this checks that it has not
+    broken: at a true rate of 5 %, 3 or more of 12 happen 2 % of the time.
+    """
     case = make_case(surrogate_base, tmp_path / "truth", None, 0.0, FITTED_TRUTH, seed=0,
                      noise_bound=0.0)
     clean = read_measured(case.measured, load_config(surrogate_base)).frame
     from bpsflow.diagnosis.hidden import null_measurements
 
-    noisy = null_measurements(clean["heating_power_w"].to_numpy(), list(range(100, 120)))
+    noisy = null_measurements(clean["heating_power_w"].to_numpy(), list(range(100, 112)))
     datasets = [clean.assign(heating_power_w=values) for values in noisy]
     results = diagnose_many(load_config(surrogate_base), datasets,
                             [tmp_path / f"out{i}" for i in range(len(datasets))],
