@@ -83,7 +83,7 @@ class Curve:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """Per-instance value at ``x`` of shape ``(n,)``."""
-        return self.c1 + self.c2 * np.clip(x, self.x_min, self.x_max) ** self.c3
+        return self.c1 + self.c2 * np.minimum(np.maximum(x, self.x_min), self.x_max) ** self.c3
 
 
 @dataclass

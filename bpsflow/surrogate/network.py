@@ -392,6 +392,16 @@ class _Stepper:
         self.probe: FaceProbe | None = None
         self.first_step = 0       # index in the period of the day's first step
         self._pad_chains()
+        # per-step constants (the stepping loop is the surrogate's hot path)
+        w = cell.window
+        self.exterior: list[tuple] = [
+            (node, s.area, s.emissivity_out, s.wind_factor, s.outside_wind, s.outside_natural,
+             s.tilt) for node, s in zip(network.outside, cell.opaque) if node is not None]
+        self.exterior.append((network.pane_out, w.area, w.emissivity_out, w.wind_factor,
+                              w.outside_wind, w.outside_natural, w.tilt))
+        self.capacity = network.capacity.copy()
+        self.capacity[:, network.AIR] = 0.0
+        self.c_dt = self.capacity / dt
 
     def _pad_chains(self) -> None:
         """The chains as one padded array, so each sweep step treats every chain at once.
@@ -496,7 +506,7 @@ class _Stepper:
         adjacent = t_air[:, None] + gradient[:, None] * self.dz[None, :]
         t_star = state[:, net.STAR] + KELVIN
         linear = 4 * SIGMA * t_star ** 3
-        x = np.clip(np.abs(t_face - adjacent), self.curve_lower, self.curve_upper)
+        x = np.minimum(np.maximum(np.abs(t_face - adjacent), self.curve_lower), self.curve_upper)
         h = np.maximum(self.curve_c1 + self.curve_c2 * x ** self.curve_c3, H_MIN)
         g_conv = h * self.opaque_areas
         offset = g_conv * gradient[:, None] * self.dz[None, :]
@@ -525,13 +535,8 @@ class _Stepper:
             vent = vent + self._exchange_conductance(inputs, k, t_air, t_out, wind, density, cp)
         g_known.append(vent)
         rhs[:, net.AIR] += vent * t_out
-        exterior: list[tuple] = [(node, s.area, s.emissivity_out, s.wind_factor,
-                                  s.outside_wind, s.outside_natural, s.tilt)
-                                 for node, s in zip(net.outside, cell.opaque) if node is not None]
-        exterior.append((net.pane_out, w.area, w.emissivity_out, w.wind_factor, w.outside_wind,
-                         w.outside_natural, w.tilt))
         flows_out = []
-        for node, area, eps, factor, hf, hn, tilt in exterior:
+        for node, area, eps, factor, hf, hn, tilt in self.exterior:
             t_s = state[:, node]
             h_conv = np.maximum(hf(wind * factor) + hn(np.abs(t_s - t_out)), H_MIN)
             cos_tilt = np.cos(np.radians(tilt))
@@ -546,9 +551,7 @@ class _Stepper:
             flows_out.append((node, g_a, g_s))
 
         c_air = cell.volume * air_density(pressure, t_air, humidity) * air_cp(humidity)
-        capacity = net.capacity.copy()
-        capacity[:, net.AIR] = 0.0
-        c_dt = capacity / self.dt
+        capacity, c_dt = self.capacity, self.c_dt
         c_dt_state = c_dt * state
 
         diagonal = c_dt + net.static_diagonal + g_pairs @ self.pair_incidence
@@ -643,18 +646,20 @@ class _Stepper:
             e[:, :, p] += f * e[:, :, p - 1]
         g_a, g_s = g_pairs[:, 0:2 * count:2], g_pairs[:, 1:2 * count:2]   # (n, chains)
         inner_d, inner_e = d[:, :, -1], e[:, :, -1]
-        m_aa = diagonal[:, air] - np.sum(g_a * g_a / inner_d, axis=1)
-        m_ss = diagonal[:, star] - np.sum(g_s * g_s / inner_d, axis=1)
-        m_as = np.sum(g_a * g_s / inner_d, axis=1)
+        m_aa = diagonal[:, air] - (g_a * g_a / inner_d).sum(axis=1)
+        m_ss = diagonal[:, star] - (g_s * g_s / inner_d).sum(axis=1)
+        m_as = (g_a * g_s / inner_d).sum(axis=1)
         det = m_aa * m_ss - m_as * m_as
         # right-hand sides (n, 2): the free state, and the response to 1 W on the air
-        r_a = np.stack([rhs[:, air] + np.sum(g_a * inner_e / inner_d, axis=1), np.ones(n)],
-                       axis=1)
-        r_s = np.stack([rhs[:, star] + np.sum(g_s * inner_e / inner_d, axis=1), np.zeros(n)],
-                       axis=1)
+        r_a = np.empty((n, 2))
+        r_a[:, 0] = rhs[:, air] + (g_a * inner_e / inner_d).sum(axis=1)
+        r_a[:, 1] = 1.0
+        r_s = np.zeros((n, 2))
+        r_s[:, 0] = rhs[:, star] + (g_s * inner_e / inner_d).sum(axis=1)
         t_a = (m_ss[:, None] * r_a + m_as[:, None] * r_s) / det[:, None]
         t_s = (m_as[:, None] * r_a + m_aa[:, None] * r_s) / det[:, None]
-        sources = np.stack([e, np.zeros_like(e)], axis=3)             # (n, chains, length, 2)
+        sources = np.zeros((n, count, length, 2))
+        sources[..., 0] = e
         t = np.empty((n, count, length, 2))
         t[:, :, -1] = (sources[:, :, -1] + g_a[:, :, None] * t_a[:, None, :]
                        + g_s[:, :, None] * t_s[:, None, :]) / inner_d[:, :, None]
