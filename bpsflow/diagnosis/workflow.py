@@ -1060,16 +1060,25 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     if all(c.screen_columns is not None for c in candidates):
         designs = [d for c in candidates for d in (c.screen_columns or [])]
     screen_starts: list[dict[str, float]] = []
-    screened = _screen(context, union, union_sample, current, [v for _, v in flat],
-                       round_number, designs, screen_starts)
-    # per cause its best variant by the screen; the best causes are fitted for real
-    best_variant: dict[int, int] = {}
-    for position, (candidate, _) in enumerate(flat):
-        key = id(candidate)
-        if key not in best_variant or screened[position] < screened[best_variant[key]]:
-            best_variant[key] = position
-    ranked = sorted(best_variant.values(), key=lambda position: screened[position])
-    selected = ranked[:settings.cv_candidates]
+    screened, per_trial = _screen(context, union, union_sample, current,
+                                  [v for _, v in flat], round_number, designs, screen_starts)
+
+    def best_causes(values: list[float]) -> list[int]:
+        """Per cause its best variant by ``values``, the causes ranked."""
+        best_variant: dict[int, int] = {}
+        for position, (candidate, _) in enumerate(flat):
+            key = id(candidate)
+            if key not in best_variant or values[position] < values[best_variant[key]]:
+                best_variant[key] = position
+        return sorted(best_variant.values(), key=lambda position: values[position])
+
+    ranked = best_causes(screened)
+    # each trial size's ranking nominates its best causes, and all are fitted for real: a
+    # linearisation can be far off for one cause at one size (hundreds of BIC units)
+    selected: list[int] = []
+    for values in per_trial:
+        selected += [i for i in best_causes(values)[:settings.cv_candidates]
+                     if i not in selected]
     for position, (_, variant) in enumerate(flat):
         variant[2]["screen_bic"] = float(screened[position])
     announce("  screened (linearised BIC): " + ", ".join(
@@ -1268,69 +1277,112 @@ def _unchanged(scores_now: dict) -> dict:
     return {"before": _short(scores_now["heldout"]), "after": _short(scores_now["heldout"])}
 
 
+#: The screen's trial sizes of each new parameter, as shares of its range: a large
+#: one, and a small one near the nesting zero. A law whose effect saturates (a leak
+#: at a quarter of its range cools the zone to its setback every night) is linear
+#: only near zero; a shape whose size trades with another (a mass's area and
+#: thickness) shows only at a larger size. The screen keeps, per variant, the one
+#: whose trial size is nearest the size its own linearised fit asks for: a secant is
+#: right near the point it passes through.
+SCREEN_STEPS = (0.25, 0.05)
+
+
 def _screen(context: _Context, union: Config, union_sample: dict, current: Model,
             variants: list[tuple[Config, list[Parameter], dict]], round_number: int,
             designs: list[np.ndarray | None] | None = None,
-            starts: list[dict[str, float]] | None = None) -> list[float]:
-    """Linearised BIC of every variant, from one batch of one run per new parameter.
+            starts: list[dict[str, float]] | None = None
+            ) -> tuple[list[float], list[list[float]]]:
+    """Linearised BIC of every variant, from two batches of one run per new parameter.
+
+    Returns the BIC kept per variant, and per trial size every variant's BIC.
 
     ``starts``, when given, receives per variant the linearised fit's values
     of the existing and new parameters (a second starting point of the fit).
 
-    Each variant's new parameters are set, one at a time, a quarter of their
+    Each variant's new parameters are set, one at a time, a share of their
     range above their current value (a parameter that acts only through the
     variant's first one, e.g. a gain's radiant fraction, with the first one
-    set too); the change of the prediction is its column. With the existing
-    parameters' Jacobian of the current fit, bounded linear least squares on
-    the calibration hours gives the variant's residual, hence its BIC
-    (:func:`bpsflow.diagnosis.comparison.bic`). The screen ranks; the
-    best causes are then fitted by simulation.
+    set too); the change of the prediction per unit is its column. With the
+    existing parameters' Jacobian of the current fit, bounded linear least
+    squares on the calibration hours gives the variant's residual, hence its
+    BIC (:func:`bpsflow.diagnosis.comparison.bic`). This is done at each of
+    :data:`SCREEN_STEPS` (two batches; ``designs`` are the first one's
+    columns when the shape screen already ran them), and the trial whose
+    size is nearest (by ratio) the first new parameter's linearised change
+    is kept, with its optimum. The screen ranks; the best causes are then
+    fitted by simulation.
     """
-    from scipy.optimize import lsq_linear
-
     d = context.data
     cal = d.calibration
     if designs is None:         # not already run by the shape screen
         designs = _screen_columns(context, union, union_sample, current, variants,
-                                  round_number, "screen")
+                                  round_number, "screen", SCREEN_STEPS[0])
+    small = _screen_columns(context, union, union_sample, current, variants, round_number,
+                            "screen_small", SCREEN_STEPS[1])
     existing_ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
     residual = d.y[cal] - current.fit.prediction[cal]
     out = []
-    for (_, free, _), new_columns in zip(variants, designs):
-        if new_columns is None:
-            out.append(np.inf)
-            if starts is not None:
-                starts.append({})
-            continue
-        kept = [p for p in current.fitted if p.name not in {q.name for q in free}]
-        keep_index = [i for i, p in enumerate(current.fitted) if p in kept]
-        lower = list(existing_ranges[keep_index, 0] - current.fit.values[keep_index])
-        upper = list(existing_ranges[keep_index, 1] - current.fit.values[keep_index])
-        for parameter in free:
-            low, high = parameter_range(parameter)
-            now = float(union_sample.get(parameter.name, 0.0))
-            lower.append(low - now)
-            upper.append(high - now)
-        design = np.column_stack([current.fit.jacobian[cal][:, keep_index], new_columns])
-        low_bounds, high_bounds = np.array(lower), np.maximum(np.array(upper),
-                                                                np.array(lower) + 1e-12)
-        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
-        solution = lsq_linear(design / scale, residual, bounds=(low_bounds * scale,
-                                                                 high_bounds * scale))
-        left = residual - (design / scale) @ solution.x
-        out.append(comparison.bic(left, len(kept) + len(free)))
+    per_trial: list[list[float]] = [[] for _ in SCREEN_STEPS]
+    for (_, free, _), *trials in zip(variants, designs, small):
+        best: tuple[float, float, dict[str, float]] = (np.inf, np.inf, {})
+        for trial, (share, new_columns) in enumerate(zip(SCREEN_STEPS, trials)):
+            if new_columns is None:
+                per_trial[trial].append(np.inf)
+                continue
+            bic, values = _linearised(current, union_sample, free, new_columns, residual,
+                                      existing_ranges, cal)
+            now = float(union_sample.get(free[0].name, 0.0))
+            step = abs(_trial_step(free[0], now, share))
+            change = abs(values[free[0].name] - now)
+            mismatch = abs(np.log(max(change, 1e-6 * step) / step))
+            best = min(best, (mismatch, bic, values), key=lambda t: (t[0], t[1]))
+            per_trial[trial].append(bic)
+        out.append(best[1])
         if starts is not None:
-            moved = solution.x / scale
-            origin = [float(current.fit.values[i]) for i in keep_index] + \
-                [float(union_sample.get(p.name, 0.0)) for p in free]
-            starts.append({p.name: value + step for p, value, step
-                           in zip([*kept, *free], origin, moved)})
-    return out
+            starts.append(best[2])
+    return out, per_trial
+
+
+def _trial_step(parameter: Parameter, now: float, share: float) -> float:
+    """The screen's trial change of ``parameter`` from ``now``: ``share`` of its range,
+    upwards when there is room."""
+    low, high = parameter_range(parameter)
+    return share * (high - now) if high - now > 1e-12 else share * (low - now)
+
+
+def _linearised(current: Model, union_sample: dict, free: list[Parameter],
+                new_columns: np.ndarray, residual: np.ndarray, existing_ranges: np.ndarray,
+                cal: np.ndarray) -> tuple[float, dict[str, float]]:
+    """(BIC, parameter values) of the bounded linear fit of ``residual`` on the current
+    fit's Jacobian and a variant's ``new_columns``."""
+    from scipy.optimize import lsq_linear
+
+    kept = [p for p in current.fitted if p.name not in {q.name for q in free}]
+    keep_index = [i for i, p in enumerate(current.fitted) if p in kept]
+    lower = list(existing_ranges[keep_index, 0] - current.fit.values[keep_index])
+    upper = list(existing_ranges[keep_index, 1] - current.fit.values[keep_index])
+    for parameter in free:
+        low, high = parameter_range(parameter)
+        now = float(union_sample.get(parameter.name, 0.0))
+        lower.append(low - now)
+        upper.append(high - now)
+    design = np.column_stack([current.fit.jacobian[cal][:, keep_index], new_columns])
+    low_bounds, high_bounds = np.array(lower), np.maximum(np.array(upper),
+                                                            np.array(lower) + 1e-12)
+    scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
+    solution = lsq_linear(design / scale, residual, bounds=(low_bounds * scale,
+                                                             high_bounds * scale))
+    left = residual - (design / scale) @ solution.x
+    moved = solution.x / scale
+    origin = [float(current.fit.values[i]) for i in keep_index] + \
+        [float(union_sample.get(p.name, 0.0)) for p in free]
+    return (comparison.bic(left, len(kept) + len(free)),
+            {p.name: value + step for p, value, step in zip([*kept, *free], origin, moved)})
 
 
 def _screen_columns(context: _Context, union: Config, union_sample: dict, current: Model,
                     variants: list[tuple[Config, list[Parameter], dict]], round_number: int,
-                    label: str) -> list[np.ndarray | None]:
+                    label: str, share: float = SCREEN_STEPS[0]) -> list[np.ndarray | None]:
     """Per variant, the change of the prediction per unit of each new parameter (cal. hours).
 
     One batch, one run per new parameter: each is set a quarter of its range
@@ -1346,9 +1398,8 @@ def _screen_columns(context: _Context, union: Config, union_sample: dict, curren
         steps: list[tuple[Parameter, float, int, int | None]] = []
         first_row = None
         for position, parameter in enumerate(free):
-            low, high = parameter_range(parameter)
             now = float(union_sample.get(parameter.name, 0.0))
-            step = 0.25 * (high - now) if high - now > 1e-12 else 0.25 * (low - now)
+            step = _trial_step(parameter, now, share)
             point = dict(union_sample)
             base_row = None
             if position > 0 and first_row is not None:
