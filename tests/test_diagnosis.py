@@ -65,10 +65,11 @@ def quiet(_text: str) -> None:
 # ---------------------------------------------------------------------------
 # Hidden model-form effects on the surrogate
 
-# The weekday office gain and the constant leak are the same families as the
-# weekend/radiant gain and the V² law below, and the randomised benchmark draws
-# them all; these two keep the linear wind law and the facade choice in make test.
-CASES = {"wind_infiltration": 0.004, "east_aperture": 1.0}
+# The weekday office gain, the constant leak and the linear wind law are the same
+# families as the weekend/radiant gain and the V² law below, and the randomised
+# benchmark draws them all; the linear wind law is checked with its size on
+# EnergyPlus (test_hidden_effect_on_energyplus). This one keeps the facade choice.
+CASES = {"east_aperture": 1.0}
 
 
 @pytest.mark.parametrize("effect", sorted(CASES))
