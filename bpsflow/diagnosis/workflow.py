@@ -1385,7 +1385,7 @@ def _screen_columns(context: _Context, union: Config, union_sample: dict, curren
                     label: str, share: float = SCREEN_STEPS[0]) -> list[np.ndarray | None]:
     """Per variant, the change of the prediction per unit of each new parameter (cal. hours).
 
-    One batch, one run per new parameter: each is set a quarter of its range
+    One batch, one run per new parameter: each is set ``share`` of its range
     above its current value (a parameter that acts only through the
     variant's first one, e.g. a gain's radiant fraction, with the first one
     set too). ``None`` for a variant with a failed run (noted).
