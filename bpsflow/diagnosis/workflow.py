@@ -1073,11 +1073,15 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         return sorted(best_variant.values(), key=lambda position: values[position])
 
     ranked = best_causes(screened)
+    bic_now = comparison.bic(d.y[d.calibration] - current.fit.prediction[d.calibration],
+                             len(current.fitted))
     # each trial size's ranking nominates its best causes, and all are fitted for real: a
     # linearisation can be far off for one cause at one size (hundreds of BIC units)
     selected: list[int] = []
     for values in per_trial:
-        selected += [i for i in best_causes(values)[:settings.cv_candidates]
+        selected += [i for i in _nominated(best_causes(values), values,
+                                           [c.family for c, _ in flat],
+                                           settings.cv_candidates, bic_now)
                      if i not in selected]
     for position, (_, variant) in enumerate(flat):
         variant[2]["screen_bic"] = float(screened[position])
@@ -1156,8 +1160,8 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     for _, extended, _, _, _ in chosen:
         union = _merge(union, extended)
     union_sample = context.sample_of(union, current.fit)
-    validated = order[:settings.cv_candidates]
-    validated = [int(i) for i in validated]
+    validated = _nominated(order, bics, [c.family for c, *_ in chosen],
+                           settings.cv_candidates, bic_before)
     before = context.block_scores(current.fit)
     oof = {validated[k]: v for k, v in _cross_validate(
         context, union, union_sample, current,
@@ -1230,6 +1234,25 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                          "bic": {"before": bic_before, "after": None},
                          "passed": False, "screened_out": True, **variant[2]}, None))
     return out
+
+
+def _nominated(ranked: list[int], bics: list[float], families: list[str], count: int,
+               ceiling: float) -> list[int]:
+    """The ``count`` best of ``ranked``, and the best of every other family below ``ceiling``.
+
+    The faces of an aperture are causes of one family and can fill every
+    place of a ranking by BIC, while another family (a thermal mass one BIC
+    unit behind the second face) is never fitted. Each family that improves
+    on the current model (BIC below ``ceiling``) is represented by its best
+    cause; the faces still compete with each other within the ``count``.
+    """
+    chosen = [int(i) for i in ranked[:count]]
+    present = {families[i] for i in chosen}
+    for i in ranked[count:]:
+        if families[i] not in present and bics[i] < ceiling:
+            chosen.append(int(i))
+            present.add(families[i])
+    return chosen
 
 
 def null_sized(fit: Fit, new: list[Parameter]) -> bool:
@@ -1309,8 +1332,11 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
     :data:`SCREEN_STEPS` (two batches; ``designs`` are the first one's
     columns when the shape screen already ran them), and the trial whose
     size is nearest (by ratio) the first new parameter's linearised change
-    is kept, with its optimum. The screen ranks; the best causes are then
-    fitted by simulation.
+    is kept, with its optimum. A law (infiltration) is screened with its best
+    subset of terms, as its fit will be (:func:`_choose_terms`): with every
+    term free it pays BIC for terms the data do not need, and a two-term leak
+    would rank below causes that merely share its hours. The screen ranks;
+    the best causes are then fitted by simulation.
     """
     d = context.data
     cal = d.calibration
@@ -1329,11 +1355,11 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
             if new_columns is None:
                 per_trial[trial].append(np.inf)
                 continue
-            bic, values = _linearised(current, union_sample, free, new_columns, residual,
-                                      existing_ranges, cal)
-            now = float(union_sample.get(free[0].name, 0.0))
-            step = abs(_trial_step(free[0], now, share))
-            change = abs(values[free[0].name] - now)
+            bic, values, lead = _linearised_terms(current, union_sample, free, new_columns,
+                                                  residual, existing_ranges, cal)
+            now = float(union_sample.get(lead.name, 0.0))
+            step = abs(_trial_step(lead, now, share))
+            change = abs(values[lead.name] - now)
             mismatch = abs(np.log(max(change, 1e-6 * step) / step))
             best = min(best, (mismatch, bic, values), key=lambda t: (t[0], t[1]))
             per_trial[trial].append(bic)
@@ -1348,6 +1374,38 @@ def _trial_step(parameter: Parameter, now: float, share: float) -> float:
     upwards when there is room."""
     low, high = parameter_range(parameter)
     return share * (high - now) if high - now > 1e-12 else share * (low - now)
+
+
+def _linearised_terms(current: Model, union_sample: dict, free: list[Parameter],
+                      new_columns: np.ndarray, residual: np.ndarray,
+                      existing_ranges: np.ndarray, cal: np.ndarray
+                      ) -> tuple[float, dict[str, float], Parameter]:
+    """:func:`_linearised` of a variant; a law's best subset of terms by BIC.
+
+    Returns the BIC, the parameter values (a term left out at its current
+    value) and the new parameter whose change measures the trial's size
+    (the first one fitted).
+    """
+    from itertools import combinations
+
+    family = (free[0].provenance or {}).get("extension", "") if free else ""
+    if not (family in EXTENSIONS and _is_law(family)):
+        bic, values = _linearised(current, union_sample, free, new_columns, residual,
+                                  existing_ranges, cal)
+        return bic, values, free[0]
+    best: tuple[float, dict[str, float], Parameter] | None = None
+    for size in range(1, len(free) + 1):
+        for subset in combinations(range(len(free)), size):
+            chosen = [free[i] for i in subset]
+            bic, values = _linearised(current, union_sample, chosen,
+                                      new_columns[:, list(subset)], residual,
+                                      existing_ranges, cal)
+            if best is None or bic < best[0]:
+                left_out = {p.name: float(union_sample.get(p.name, 0.0))
+                            for p in free if p not in chosen}
+                best = (bic, {**values, **left_out}, chosen[0])
+    assert best is not None
+    return best
 
 
 def _linearised(current: Model, union_sample: dict, free: list[Parameter],
@@ -1579,6 +1637,15 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     fit's Jacobian): the best neighbour is taken if it improves, up to
     ``steps`` times. The block reached is then fitted by simulation (from the
     values reached) and kept if its objective beats the block it started from.
+
+    Before the edges move, the block may jump (:func:`_pulse_jumps`): a gain
+    at hours when the output is already clipped (no heating on a sunny
+    afternoon) shows up in the residuals only hours later, when the stored
+    heat offsets the evening's heating, so the residual-shaped shortlist can
+    sit wholly after the true hours, further than edge steps reach. The
+    block's own simulated response, composed from one-hour pulses, finds the
+    hours whose *effect* fits; the best such blocks are the first step's
+    candidates, scored like the edge moves.
     """
     from scipy.optimize import lsq_linear
 
@@ -1589,16 +1656,30 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     fitted = [*_without(current.fitted, new), *new]
     names = [p.name for p in fitted]
     ranges = np.array([parameter_range(p) for p in fitted]).reshape(-1, 2)
-    jacobian = fit.jacobian[cal]
-    scale = np.maximum(np.abs(jacobian).max(axis=0), 1e-300)
+    jacobian = fit.jacobian[cal].copy()
+    # the block's own columns (its level, its radiant fraction): a block that jumps to
+    # other hours takes its simulated effect per watt as the level's column
+    level_column = next(i for i, p in enumerate(fitted)
+                        if p in new and _reported(p) == "scheduled_gain_w")
+    block_columns = [i for i, p in enumerate(fitted) if p in new]
 
-    def corrected(prediction: np.ndarray, values: np.ndarray) -> tuple[float, np.ndarray]:
+    def corrected(prediction: np.ndarray, values: np.ndarray,
+                  design: np.ndarray | None = None) -> tuple[float, np.ndarray]:
         """RSS after the best bounded linear step of every fitted parameter, and that step."""
+        design = jacobian if design is None else design
+        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
         lower = (ranges[:, 0] - values) * scale
         upper = np.maximum((ranges[:, 1] - values) * scale, lower + 1e-12)
-        step = lsq_linear(jacobian / scale, (d.y - prediction)[cal], bounds=(lower, upper)).x
-        left = (d.y - prediction)[cal] - (jacobian / scale) @ step
+        step = lsq_linear(design / scale, (d.y - prediction)[cal], bounds=(lower, upper)).x
+        left = (d.y - prediction)[cal] - (design / scale) @ step
         return float(left @ left), step / scale
+
+    def own_design(effect: np.ndarray, level: float) -> np.ndarray:
+        """The Jacobian with the block's columns replaced by its own effect per watt."""
+        design = jacobian.copy()
+        design[:, block_columns] = 0.0
+        design[:, level_column] = effect[cal] / level
+        return design
 
     block = dict(detail["schedule"])
     state_values = fit.values.copy()
@@ -1606,13 +1687,18 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     tried = {(block["day_type"], block["start_hour"], block["end_hour"])}
     moves: list[dict] = []
     reached: tuple[Config, list[Parameter]] | None = None
+    jumps, without = _pulse_jumps(context, current, config, detail, fitted, new, state_values,
+                                  level_column, corrected, own_design, directory, round_number)
+    tried.update(jumps)
     for step_number in range(steps):
         kind, first, last = block["day_type"], block["start_hour"], block["end_hour"]
-        neighbours = [(kind, a, b) for a, b in ((first - 2, last), (first - 1, last),
-                                                (first + 1, last), (first + 2, last),
-                                                (first, last - 2), (first, last - 1),
-                                                (first, last + 1), (first, last + 2))
-                      if 0 <= a < b <= 24 and (kind, a, b) not in tried]
+        jumping = step_number == 0 and bool(jumps)
+        neighbours = jumps if jumping else [
+            (kind, a, b) for a, b in ((first - 2, last), (first - 1, last),
+                                      (first + 1, last), (first + 2, last),
+                                      (first, last - 2), (first, last - 1),
+                                      (first, last + 1), (first, last + 2))
+            if 0 <= a < b <= 24 and (kind, a, b) not in tried]
         if not neighbours:
             break
         tried.update(neighbours)
@@ -1643,17 +1729,25 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
         label = f"round{round_number}_edges"
         context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
         scored = []
+        level_w = float(state_values[level_column])
         for (variant, added, shape), prediction in zip(variants, predicted):
             if not np.isfinite(prediction).all():
                 continue
-            rss, step = corrected(prediction, state_values)
-            scored.append((rss, variant, added, shape, step))
+            design = (own_design(prediction - without, level_w)
+                      if jumping and without is not None else None)
+            rss, step = corrected(prediction, state_values, design)
+            scored.append((rss, variant, added, shape, step, design))
         if not scored:
             break
-        rss, variant, added, shape, step = min(scored, key=lambda item: item[0])
-        moves.append({"schedule": shape, "rss": rss, "from_rss": state_rss})
+        rss, variant, added, shape, step, design = min(scored, key=lambda item: item[0])
+        moves.append({"schedule": shape, "rss": rss, "from_rss": state_rss,
+                      **({"jump": True} if jumping else {})})
         if rss >= state_rss * (1 - 1e-4):
+            if jumping:
+                continue
             break
+        if design is not None:
+            jacobian = design
         block = {**block, **shape}
         state_values = np.clip(state_values + step, ranges[:, 0], ranges[:, 1])
         state_rss = rss
@@ -1674,6 +1768,79 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     if refit.failed or refit.objective >= fit.objective:
         return extended, _original_new(extended, current), detail, fit
     return variant, added, {**detail, "schedule": {**detail["schedule"], **block}}, refit
+
+
+#: Blocks a gain block may jump to before its edges move (:func:`_pulse_jumps`).
+PULSE_JUMPS = 3
+
+
+def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict,
+                 fitted: list[Parameter], new: list[Parameter], values: np.ndarray,
+                 level_column: int, corrected, own_design, directory: Path,
+                 round_number: int) -> tuple[list[tuple[str, int, int]], np.ndarray | None]:
+    """The blocks of the gain's day type whose simulated response fits the data best.
+
+    One batch of 25 runs: the current fit without the block, and one
+    one-hour pulse of the block's day type for each hour of the day, at the
+    block's fitted level and radiant fraction. A block's response is the sum
+    of its hours' pulse effects (superposition: exact for a linear model, a
+    first approximation where the output clips at zero). Every block
+    ``[a, b)`` is scored by the residual sum of squares left after the same
+    bounded linear correction as an edge move, with the block's own effect
+    per watt as its level's column.
+
+    Returns
+    -------
+    jumps : list of (day type, start hour, end hour)
+        At most :data:`PULSE_JUMPS` blocks that score better than the
+        current block scored the same way; empty when none does.
+    without : ndarray or None
+        The prediction without the block (``None`` when no pulse ran).
+    """
+    d = context.data
+    block = detail["schedule"]
+    kind = block["day_type"]
+    level = float(values[level_column])
+    if level <= 0:
+        return [], None
+    extension = EXTENSIONS["internal_gain_schedule"]
+    known = {q.name for q in config.parameters}
+    union, pulses = config, []
+    for hour in range(24):
+        schedule = profile_schedule(block_profile(kind, hour, hour + 1), config.model.year)
+        number = _fresh_variant(config, "internal_gain_schedule", 2000 + hour)
+        variant = extend_config(config, extension, directory / "pulses", schedule, number,
+                                zone=detail.get("zone"), output=d.output)
+        union = _merge(union, variant)
+        pulses.append([q for q in variant.parameters if q.name not in known])
+    base_row = context.sample_of(union, current.fit)
+    base_row.update(dict(zip([q.name for q in fitted], values)))
+    base_row.update({q.name: 0.0 for q in new})
+    own = {_reported(q): float(v) for q, v in zip(fitted, values) if q in new}
+    rows = [dict(base_row)]
+    for added in pulses:
+        rows.append({**base_row, **{q.name: own.get(_reported(q), 0.0) for q in added}})
+    started = time.perf_counter()
+    predicted = context.simulator(union, f"round{round_number}_pulses")(
+        pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance")))
+    label = f"round{round_number}_pulses"
+    context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+    runs = np.asarray(predicted, dtype=float)
+    if not np.isfinite(runs).all():
+        return [], None
+    without = runs[0]
+    # cumulative[h]: the summed effect of the pulses before hour h
+    cumulative = np.vstack([np.zeros_like(without), np.cumsum(runs[1:] - without, axis=0)])
+    scores = {}
+    for first in range(24):
+        for last in range(first + 1, 25):
+            effect = cumulative[last] - cumulative[first]
+            scores[(kind, first, last)] = corrected(without + effect, values,
+                                                    own_design(effect, level))[0]
+    here = (kind, block["start_hour"], block["end_hour"])
+    bar = scores[here]
+    better = sorted((rss, key) for key, rss in scores.items() if key != here and rss < bar)
+    return [key for _, key in better[:PULSE_JUMPS]], without
 
 
 def _original_new(extended: Config, current: Model) -> list[Parameter]:
