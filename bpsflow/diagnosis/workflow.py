@@ -1073,15 +1073,15 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         return sorted(best_variant.values(), key=lambda position: values[position])
 
     ranked = best_causes(screened)
-    bic_now = comparison.bic(d.y[d.calibration] - current.fit.prediction[d.calibration],
-                             len(current.fitted))
     # each trial size's ranking nominates its best causes, and all are fitted for real: a
-    # linearisation can be far off for one cause at one size (hundreds of BIC units)
+    # linearisation can be far off for one cause at one size (hundreds of BIC units), and
+    # a leak whose night setback makes it nonlinear can screen no better than the current
+    # model and still fit 180 BIC units better, so every family's best cause is fitted
     selected: list[int] = []
     for values in per_trial:
         selected += [i for i in _nominated(best_causes(values), values,
                                            [c.family for c, _ in flat],
-                                           settings.cv_candidates, bic_now)
+                                           settings.cv_candidates, np.inf)
                      if i not in selected]
     for position, (_, variant) in enumerate(flat):
         variant[2]["screen_bic"] = float(screened[position])
@@ -1242,9 +1242,12 @@ def _nominated(ranked: list[int], bics: list[float], families: list[str], count:
 
     The faces of an aperture are causes of one family and can fill every
     place of a ranking by BIC, while another family (a thermal mass one BIC
-    unit behind the second face) is never fitted. Each family that improves
-    on the current model (BIC below ``ceiling``) is represented by its best
-    cause; the faces still compete with each other within the ``count``.
+    unit behind the second face) is never fitted. Each family whose BIC is
+    below ``ceiling`` is represented by its best cause; the faces still
+    compete with each other within the ``count``. Every family is fitted
+    (``ceiling`` infinite: the screen's BIC is linearised); a fitted one is
+    cross-validated when it improves on the current model (``ceiling``: the
+    current BIC, which an accepted cause must beat anyway).
     """
     chosen = [int(i) for i in ranked[:count]]
     present = {families[i] for i in chosen}
