@@ -1040,8 +1040,9 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     parameters at zero the union *is* ``current`` plus that one variant. Per
     cause the variant with the lowest objective is kept (a law's terms are
     then chosen by BIC, :func:`_choose_terms`). The causes are ranked by BIC on
-    the calibration hours; the ``cv_candidates`` best are cross-validated
-    over the whole period (:mod:`bpsflow.diagnosis.crossval`), and a cause
+    the calibration hours; the ``cv_candidates`` best, and the best of every
+    other family that improves on ``current`` (:func:`_nominated`), are
+    cross-validated over the whole period (:mod:`bpsflow.diagnosis.crossval`), and a cause
     passes when its change of the out-of-fold prediction explains the
     current model's out-of-fold errors (:func:`comparison.encompassing_test`,
     fixed-b, at ``gain_alpha``), its BIC is lower and its out-of-fold CV(RMSE)
