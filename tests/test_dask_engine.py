@@ -255,3 +255,20 @@ def test_ctrl_c_stops_the_run_and_leaves_it_resumable(tmp_path, engine):
     assert resumed.returncode == 0, resumed.stderr
     assert f"skipped {finished} finished" in " ".join(resumed.stdout.split())
     assert (read_manifest(tmp_path / "run")["status"] == "ok").sum() == 30
+
+
+def test_a_workers_lost_scheduler_heartbeat_is_dropped_and_other_records_kept():
+    """A worker's heartbeat that meets a closed scheduler (the command closing its cluster
+    after Ctrl-C) must not print Dask's traceback; every other worker record still shows."""
+    import logging
+
+    from bpsflow.simulation.dask_worker import SchedulerGoneFilter
+
+    gone_filter = SchedulerGoneFilter()
+
+    def record(message: str) -> logging.LogRecord:
+        return logging.LogRecord("distributed.worker", logging.ERROR, __file__, 1, message, None, None)
+
+    assert not gone_filter.filter(record("Failed to communicate with scheduler during heartbeat."))
+    assert gone_filter.filter(record("Unexpected exception during heartbeat. Closing worker."))
+    assert gone_filter.filter(record("Compute Failed"))
