@@ -499,3 +499,68 @@ def test_lumped_walls_report_the_same_values(tmp_path):
     np.testing.assert_array_equal(wide["EastWall_temperature"], wide["westwall_temperature"])
     np.testing.assert_array_equal(wide["EastWall_temperature"], wide["NORTHWALL_temperature"])
     assert (wide["EastWall_temperature"] - wide["SouthWall_temperature"]).abs().max() > 0.1
+
+
+def test_compiled_step_equals_the_numpy_step_with_every_kind_of_term(tmp_path):
+    """The compiled day loop (bpsflow.surrogate.kernel) against the numpy step it replaces.
+
+    The model carries every term the step has: scheduled air exchanges of the
+    full A + B|ΔT| + C·V + D·V² law, a scheduled gain with a radiant part, an
+    internal mass (an adiabatic chain), a solar aperture, the glazing gap and
+    a night setback (both setpoints acting), over a warm-up and several days.
+    """
+    from bpsflow.diagnosis.extensions import EXTENSIONS, extend_config, year_hours
+    from bpsflow.surrogate.forcing import period_forcing
+
+    raw = {"extends": str(ROOT / "configs" / "diagnosis.yaml"),
+           "model": {"backend": "surrogate",
+                     "periods": [{"name": "p", "start": "01-10", "end": "01-15"}],
+                     "tests": [{"name": "T", "period": "p", "start": "01-10", "days": 6,
+                                "warmup_days": 1, "mode": "heating", "setpoint_c": 28.0,
+                                "setback_c": 18.0, "setback_start_hour": 18,
+                                "setback_end_hour": 7, "outputs": ["heating_power_w"]}]},
+           "execution": {"run_dir": str(tmp_path / "run")}}
+    path = tmp_path / "base.yaml"
+    path.write_text(__import__("yaml").safe_dump(raw))
+    config = load_config(path)
+    hours = year_hours(config.model.year)
+    start_hour = (hours - pd.Timedelta(hours=1)).hour
+    office = pd.Series(((start_hour >= 9) & (start_hour < 17)).astype(float), index=hours)
+    irradiance = pd.Series(np.clip(np.sin((start_hour - 6) / 12 * np.pi), 0, None) * 400,
+                           index=hours)
+    for name, schedule in (("infiltration", None), ("internal_gain_schedule", office),
+                           ("thermal_mass", None), ("solar_aperture", irradiance)):
+        config = extend_config(config, EXTENSIONS[name], tmp_path / name, schedule)
+    rows = [{p.name: float(p.distribution.nominal) for p in config.parameters}
+            for _ in range(3)]
+    extension_values = {"infiltration_a_m3s": 0.004, "infiltration_b_m3s_per_k": 0.0003,
+                        "infiltration_c_m3s_per_ms": 0.002, "infiltration_d_m3s_per_m2s2": 0.0005,
+                        "scheduled_gain_w": 400.0, "scheduled_gain_radiant_fraction": 0.5,
+                        "internal_mass_area_m2": 20.0, "internal_mass_thickness_m": 0.15,
+                        "solar_aperture_m2": 1.0}
+    for scale, row in zip((0.5, 1.0, 2.0), rows):
+        row.update({key: value * scale for key, value in extension_values.items()})
+    samples = sample_columns(config, pd.DataFrame(rows, index=pd.RangeIndex(3, name="instance")))
+    from bpsflow.simulation.idf import model_objects
+
+    cell = build_cell(config, field_values(config, model_objects(config.model), samples))
+    assert cell.air_exchanges and cell.internal_gains
+    assert any(s.adiabatic for s in cell.opaque)
+    from bpsflow.boundary import ensure_sequences
+
+    ensure_sequences(config)
+    network = build_network(cell)
+    forcing = period_forcing(config, cell, config.model.periods[0], samples, tmp_path / "run")
+    compiled = simulate(cell, network, forcing, compiled=True)
+    reference = simulate(cell, network, forcing, compiled=False)
+    assert compiled.warmup_days == reference.warmup_days
+    assert np.ptp(reference.power) > 100.0 and (reference.power == 0).any()
+    np.testing.assert_allclose(compiled.air, reference.air, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(compiled.power, reference.power, rtol=1e-9, atol=1e-7)
+    np.testing.assert_allclose(compiled.state, reference.state, rtol=0, atol=1e-9)
+
+
+def test_the_compiled_kernel_shares_the_network_constants():
+    from bpsflow.surrogate import kernel, network
+
+    assert (kernel.KELVIN, kernel.H_MIN) == (network.KELVIN, network.H_MIN)

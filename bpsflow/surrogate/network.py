@@ -49,10 +49,12 @@ path does no extra work.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from bpsflow.surrogate.cell import STANDARD_AIR_DENSITY, Cell
+from bpsflow.surrogate import kernel
+from bpsflow.surrogate.cell import STANDARD_AIR_DENSITY, Cell, Curve
 from bpsflow.surrogate.forcing import SIGMA, PeriodForcing, solar_inputs
 
 KELVIN = 273.15
@@ -315,17 +317,20 @@ def simulate(cell: Cell, network: Network, forcing: PeriodForcing, *,
              min_warmup_days: int = 6, max_warmup_days: int = 25,
              warmup_tolerance: float = 0.02, initial: np.ndarray | None = None,
              account: bool = False, air_order: int = 3, dense: bool = False,
-             probe: FaceProbe | None = None) -> Simulation:
+             probe: FaceProbe | None = None, compiled: bool = True) -> Simulation:
     """Run a period: warm-up on its first day repeated, then every day in turn.
 
     ``probe`` (optional) records inside-face quantities over the period (not
-    the warm-up).
+    the warm-up). ``compiled`` steps with :mod:`bpsflow.surrogate.kernel`
+    where it applies (no energy accounting, probe or dense solve); ``False``
+    keeps the numpy step, the reference it is tested against.
     """
     n, size = network.n, network.size
     spd = forcing.steps_per_day
     dt = 3600.0 / forcing.steps_per_hour
     state = np.full((n, size), T_INITIAL) if initial is None else initial.copy()
     stepper = _Stepper(cell, network, forcing, dt, account, air_order, dense)
+    stepper.compiled = compiled
     stepper.start(state)
     warmup = 0
     if max_warmup_days > 0:
@@ -387,9 +392,11 @@ class _Stepper:
         self.energy: dict[str, np.ndarray] = {}
         self.start_state: np.ndarray | None = None
         self.air_order = air_order
-        self.history = None
+        self.history: Any = None     # the air temperatures of the last three steps
         self.dense = dense
         self.probe: FaceProbe | None = None
+        self.compiled = True
+        self._kernel: kernel.KernelConstants | None = None
         self.first_step = 0       # index in the period of the day's first step
         self._pad_chains()
         # per-step constants (the stepping loop is the surrogate's hot path)
@@ -424,6 +431,7 @@ class _Stepper:
                 else:
                     self.chain_links[:, c, offset + position] = link
         real = self.chain_nodes < net.size
+        self.chain_start = length - real.sum(axis=1)
         self.chain_real = np.nonzero(real)
         self.chain_real_nodes = self.chain_nodes[real]
 
@@ -478,13 +486,81 @@ class _Stepper:
                 out[:, :, face] += share[:, m:m + 1] * radiant
         return out
 
+    def kernel_constants(self) -> kernel.KernelConstants:
+        """This run's constants for :func:`bpsflow.surrogate.kernel.run_day` (built once)."""
+        if self._kernel is not None:
+            return self._kernel
+        cell, net, n = self.cell, self.net, self.net.n
+
+        def instances(value: object) -> np.ndarray:
+            return np.broadcast_to(np.asarray(value, dtype=float), (n,))
+
+        def curve_array(curve: Curve) -> np.ndarray:
+            return np.stack([instances(curve.c1), instances(curve.c2), instances(curve.c3),
+                             instances(curve.x_min), instances(curve.x_max)], axis=1)
+
+        w = cell.window
+        tilts = np.radians([tilt for *_, tilt in self.exterior])
+        f_sky = (1 + np.cos(tilts)) / 2
+        exchanges = cell.air_exchanges
+        coefficient, history = AIR_SCHEMES[self.air_order]
+        gap_chain, gap_position = self.gap_link if self.gap_link is not None else (-1, -1)
+        contiguous = np.ascontiguousarray
+        self._kernel = kernel.KernelConstants(
+            faces=np.array(net.inside + [net.pane_in], dtype=np.int64),
+            dz=contiguous(self.dz, dtype=float),
+            gradient=contiguous(instances(cell.gradient)),
+            curve=contiguous(np.stack([self.curve_c1, self.curve_c2, self.curve_c3], axis=2)),
+            curve_bounds=contiguous(np.stack([self.curve_lower, self.curve_upper], axis=1)),
+            face_area=contiguous(self.opaque_areas), radiant_area=contiguous(self.radiant_area),
+            window=contiguous(np.stack([instances(w.emissivity_gap_out),
+                                        instances(w.emissivity_gap_in),
+                                        instances(w.pane_resistance), instances(w.area)], axis=1)),
+            gap_width=float(w.gap_thickness), pane_out=net.pane_out, pane_in=net.pane_in,
+            exterior_nodes=np.array([node for node, *_ in self.exterior], dtype=np.int64),
+            exterior=contiguous(np.stack([np.stack([instances(area), instances(eps),
+                                                    instances(factor)], axis=1)
+                                          for _, area, eps, factor, *_ in self.exterior],
+                                         axis=1)),
+            exterior_view=contiguous(np.stack([f_sky, (1 - np.cos(tilts)) / 2, np.sqrt(f_sky)],
+                                              axis=1)),
+            outside_wind=contiguous(np.stack([curve_array(hf) for *_, hf, _, _ in self.exterior],
+                                             axis=1)),
+            outside_natural=contiguous(np.stack([curve_array(hn)
+                                                 for *_, hn, _ in self.exterior], axis=1)),
+            ventilation=contiguous(instances(cell.ventilation_m3s)),
+            volume=float(cell.volume), zone_wind_factor=float(cell.zone_wind_factor),
+            exchange=contiguous(np.stack([np.stack([instances(a.design_m3s), instances(a.constant),
+                                                    instances(a.temperature),
+                                                    instances(a.velocity),
+                                                    instances(a.velocity_squared)], axis=1)
+                                          for a in exchanges]) if exchanges
+                                else np.zeros((0, n, 5))),
+            exchange_outdoor=np.array([a.density_basis == "outdoor" for a in exchanges],
+                                      dtype=np.bool_),
+            standard_density=float(STANDARD_AIR_DENSITY),
+            c_dt=contiguous(self.c_dt, dtype=float),
+            static_diagonal=contiguous(net.static_diagonal, dtype=float),
+            chain_nodes=contiguous(self.chain_nodes, dtype=np.int64),
+            chain_start=contiguous(self.chain_start, dtype=np.int64),
+            chain_links=contiguous(self.chain_links, dtype=float),
+            gap_chain=int(gap_chain), gap_position=int(gap_position),
+            air_coefficient=float(coefficient), air_history=np.array(history, dtype=float),
+            dt=float(self.dt), sigma=float(SIGMA))
+        return self._kernel
+
     # Stepping ---------------------------------------------------------
     def run_day(self, state: np.ndarray, inputs: dict, day: int):
         spd = inputs["heat"].shape[0]
         n = self.net.n
+        self.first_step = day * spd
+        if self.compiled and not (self.account or self.dense or self.probe is not None):
+            history = np.ascontiguousarray(np.stack(self.history, axis=1), dtype=np.float64)
+            state, air, power = kernel.run_day(self.kernel_constants(), state, history, inputs)
+            self.history = (history[:, 0].copy(), history[:, 1].copy(), history[:, 2].copy())
+            return state, air, power
         air = np.empty((n, spd))
         power = np.empty((n, spd))
-        self.first_step = day * spd
         for k in range(spd):
             state, power[:, k] = self.step(state, inputs, k)
             air[:, k] = state[:, self.net.AIR]
