@@ -8,7 +8,9 @@ compiled: the same heat balance, the same order of elimination (chains onto
 the air and star hubs, a 2x2 solve, back-substitution), the same ideal air
 system. It is used for plain runs; the numpy step remains the reference
 (and serves the energy accounting, the face probe and the dense solve).
-The two agree to rounding (``tests/test_surrogate.py``).
+The two agree to rounding (``tests/test_surrogate.py``). Division follows
+numpy's rules (``error_model="numpy"``): a degenerate model gives non-finite
+outputs, which the simulation layer reports, not a ``ZeroDivisionError``.
 """
 
 from __future__ import annotations
@@ -23,12 +25,12 @@ KELVIN = 273.15
 H_MIN = 0.1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _curve(c1: float, c2: float, c3: float, lower: float, upper: float, x: float) -> float:
     return c1 + c2 * min(max(x, lower), upper) ** c3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gap_conductance(t1: float, t2: float, e1: float, e2: float, width: float,
                      pressure: float, sigma: float) -> float:
     """Air gap conductance (W/m²K), as :func:`bpsflow.surrogate.network._gap_conductance`."""
@@ -126,7 +128,7 @@ def run_day(constants: KernelConstants, state: np.ndarray, history: np.ndarray,
     return new_state, air, power
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _run_day(state, history, air_out, power_out, t_out_all, t_sky_all, pressure_all,
              humidity_all, wind_all, source, boundary, internal, has_internal, heat, cool,
              exchange_schedules, faces, dz, gradient, curve, curve_bounds, face_area,
