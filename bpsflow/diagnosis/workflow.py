@@ -1181,7 +1181,13 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                         and bics[index] < bic_before
                         and cv["cvrmse_after"] < cv["cvrmse_before"])
         at_zero = null_sized(fit, new)
-        passed = improves and not at_zero
+        # an effect that matters: the extension (with the refit it brings) moves the
+        # output by as much as a driver must (``min_amplitude`` of the mean), so a
+        # sliver fitted on top of an accepted cause is not named a second cause
+        cal = d.calibration
+        moved = float(np.std(fit.prediction[cal] - current.fit.prediction[cal]))
+        matters = moved >= settings.min_amplitude * abs(float(np.mean(d.y[cal])))
+        passed = improves and not at_zero and matters
         names = [p.name for p in fitted]
         screened_out = [(v[2]["screen_bic"], c.cause) for c, v in flat
                         if not any(c is other for other, *_ in chosen)]
@@ -1203,6 +1209,8 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                  "loss_difference": cv["loss_difference"] if cv else None,
                  "bic": {"before": bic_before, "after": bics[index]},
                  "passed": passed, "iterations": fit.iterations,
+                 "output_change_std": moved,
+                 **({"below_min_amplitude": True} if improves and not matters else {}),
                  **({"at_zero": True, "improves_fit": improves} if at_zero else {}),
                  "files": str(extended.model.idf_objects[-1].parent), **detail}
         # the runner-up: the next cause fitted, or a screened-out one if its screen is lower
