@@ -25,8 +25,9 @@ internal_gain_schedule   OtherEquipment, Schedule:File on/off       scheduled_ga
                          day types: weekdays, weekends, all days    fraction (-, 0–0.9)
                          or one day of the week)
 solar_aperture           OtherEquipment, Schedule:File of the       solar_aperture_m2 (m²: W of
-                         irradiance on the zone's facade (model     gain per W/m² incident)
-                         geometry, pvlib)
+                         irradiance on the zone's facade (model     gain per W/m² incident),
+                         geometry, pvlib)                           solar_aperture_radiant_
+                                                                    fraction (-, 0–0.9)
 envelope_ua              ZoneInfiltration:DesignFlowRate, constant  extra_conductance_m3s (m³/s;
                          flow (A = 1): a conductance to outdoors;   ×ρc_p ≈ 1206 J/(m³K) = W/K)
                          Schedule:Constant 1
@@ -172,9 +173,15 @@ EXTENSIONS: dict[str, Extension] = {
         name="solar_aperture",
         description="an unmodelled solar gain through a facade (gain factor × incident solar)",
         snippet="solar_aperture.idf",
-        parameters=(NewParameter(
-            "solar_aperture_m2", "OtherEquipment", "Design Level",
-            0.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),),
+        parameters=(
+            NewParameter("solar_aperture_m2", "OtherEquipment", "Design Level",
+                         0.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),
+            # sun through an opening lands on the room's surfaces before the air: the
+            # share that reaches them first is fitted (no effect at an aperture of 0)
+            NewParameter("solar_aperture_radiant_fraction", "OtherEquipment",
+                         "Fraction Radiant", 0.0, 0.9, "-",
+                         "radiant fraction of the aperture's gain (to the inside faces)",
+                         sets_size=False)),
         schedule_file="facade_irradiance.csv",
         drivers=("incident_solar_south", "incident_solar_east", "incident_solar_west",
                  "incident_solar_north", "incident_solar_roof", "global_horizontal_radiation",

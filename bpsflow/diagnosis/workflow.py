@@ -1181,12 +1181,12 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                         and bics[index] < bic_before
                         and cv["cvrmse_after"] < cv["cvrmse_before"])
         at_zero = null_sized(fit, new)
-        # an effect that matters: the extension (with the refit it brings) moves the
-        # output by as much as a driver must (``min_amplitude`` of the mean), so a
-        # sliver fitted on top of an accepted cause is not named a second cause
+        # an effect that matters: the extension's own contribution is as large as a
+        # driver's must be (``min_amplitude`` of the mean), so a sliver fitted on top
+        # of an accepted cause is not named a second cause
         cal = d.calibration
-        moved = float(np.std(fit.prediction[cal] - current.fit.prediction[cal]))
-        matters = moved >= settings.min_amplitude * abs(float(np.mean(d.y[cal])))
+        effect_rms = float(np.sqrt(np.mean(extension_effect(fit, new)[cal] ** 2)))
+        matters = effect_rms >= settings.min_amplitude * abs(float(np.mean(d.y[cal])))
         passed = improves and not at_zero and matters
         names = [p.name for p in fitted]
         screened_out = [(v[2]["screen_bic"], c.cause) for c, v in flat
@@ -1209,7 +1209,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                  "loss_difference": cv["loss_difference"] if cv else None,
                  "bic": {"before": bic_before, "after": bics[index]},
                  "passed": passed, "iterations": fit.iterations,
-                 "output_change_std": moved,
+                 "effect_rms": effect_rms,
                  **({"below_min_amplitude": True} if improves and not matters else {}),
                  **({"at_zero": True, "improves_fit": improves} if at_zero else {}),
                  "files": str(extended.model.idf_objects[-1].parent), **detail}
@@ -1265,6 +1265,25 @@ def _nominated(ranked: list[int], bics: list[float], families: list[str], count:
             chosen.append(int(i))
             present.add(families[i])
     return chosen
+
+
+def extension_effect(fit: Fit, new: list[Parameter]) -> np.ndarray:
+    """The extension's own contribution to the fitted output at every hour (output units).
+
+    The fit's linearisation from each size-setting parameter of ``new`` at its
+    nested value to its fitted value: the change the extension makes with the
+    existing parameters held where they were fitted (exact for a design level,
+    which the output is linear in; a first-order size for the others).
+    """
+    names = [p.name for p in fit.parameters]
+    effect = np.zeros(len(fit.prediction))
+    for p in new:
+        if not (p.provenance or {}).get("sets_size", False) or p.name not in names:
+            continue
+        nested = float((p.provenance or {}).get("nested_at", 0.0))
+        column = names.index(p.name)
+        effect += fit.jacobian[:, column] * (float(fit.values[column]) - nested)
+    return effect
 
 
 def null_sized(fit: Fit, new: list[Parameter]) -> bool:
