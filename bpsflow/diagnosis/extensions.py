@@ -145,6 +145,17 @@ class Extension:
 #: 0.05 m³/s per m/s and ``envelope_ua``'s 0.1 m³/s.
 INFILTRATION_BOUNDS = {"A": 0.1, "B": 0.005, "C": 0.05, "D": 0.01}
 
+def _radiant_fraction(prefix: str, of_what: str) -> NewParameter:
+    """The radiant fraction (to the inside faces) of an ``OtherEquipment`` extension's gain.
+
+    It only shapes the gain: no effect while the design level is 0, so the
+    extension stays nested at zero whatever its value.
+    """
+    return NewParameter(f"{prefix}_radiant_fraction", "OtherEquipment", "Fraction Radiant",
+                        0.0, 0.9, "-", f"radiant fraction of {of_what} (to the inside faces)",
+                        sets_size=False)
+
+
 EXTENSIONS: dict[str, Extension] = {
     "infiltration_wind": Extension(
         name="infiltration_wind",
@@ -162,11 +173,7 @@ EXTENSIONS: dict[str, Extension] = {
         parameters=(
             NewParameter("scheduled_gain_w", "OtherEquipment", "Design Level",
                          0.0, 3000.0, "W", "gain while the block schedule is on"),
-            # no effect while the design level is 0: nested at 0 like the level
-            NewParameter("scheduled_gain_radiant_fraction", "OtherEquipment",
-                         "Fraction Radiant", 0.0, 0.9, "-",
-                         "radiant fraction of the scheduled gain (to the inside faces)",
-                         sets_size=False)),
+            _radiant_fraction("scheduled_gain", "the scheduled gain")),
         schedule_file="internal_gain_profile.csv",
         drivers=("hour_of_day", "weekend")),
     "solar_aperture": Extension(
@@ -176,12 +183,8 @@ EXTENSIONS: dict[str, Extension] = {
         parameters=(
             NewParameter("solar_aperture_m2", "OtherEquipment", "Design Level",
                          0.0, 5.0, "m2", "W of gain per W/m² incident on the facade"),
-            # sun through an opening lands on the room's surfaces before the air: the
-            # share that reaches them first is fitted (no effect at an aperture of 0)
-            NewParameter("solar_aperture_radiant_fraction", "OtherEquipment",
-                         "Fraction Radiant", 0.0, 0.9, "-",
-                         "radiant fraction of the aperture's gain (to the inside faces)",
-                         sets_size=False)),
+            # sun through an opening lands on the room's surfaces before the air
+            _radiant_fraction("solar_aperture", "the aperture's gain")),
         schedule_file="facade_irradiance.csv",
         drivers=("incident_solar_south", "incident_solar_east", "incident_solar_west",
                  "incident_solar_north", "incident_solar_roof", "global_horizontal_radiation",
