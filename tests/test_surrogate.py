@@ -8,10 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from bpsflow.boundary import ensure_sequences
 from bpsflow.config import load_config
-from bpsflow.simulation.idf import polygon_area, read_idf
+from bpsflow.diagnosis.extensions import EXTENSIONS, extend_config, year_hours
+from bpsflow.simulation.idf import model_objects, polygon_area, read_idf
 from bpsflow.surrogate.cell import build_cell
-from bpsflow.surrogate.forcing import constant_forcing
+from bpsflow.surrogate.forcing import constant_forcing, period_forcing
 from bpsflow.surrogate.network import build_network, simulate
 from bpsflow.surrogate.params import field_values, sample_columns
 from bpsflow.surrogate.run import ignored_targets, simulate_instances
@@ -509,20 +511,14 @@ def test_compiled_step_equals_the_numpy_step_with_every_kind_of_term(tmp_path):
     internal mass (an adiabatic chain), a solar aperture, the glazing gap and
     a night setback (both setpoints acting), over a warm-up and several days.
     """
-    from bpsflow.diagnosis.extensions import EXTENSIONS, extend_config, year_hours
-    from bpsflow.surrogate.forcing import period_forcing
-
     raw = {"extends": str(ROOT / "configs" / "diagnosis.yaml"),
            "model": {"backend": "surrogate",
                      "periods": [{"name": "p", "start": "01-10", "end": "01-15"}],
                      "tests": [{"name": "T", "period": "p", "start": "01-10", "days": 6,
                                 "warmup_days": 1, "mode": "heating", "setpoint_c": 28.0,
                                 "setback_c": 18.0, "setback_start_hour": 18,
-                                "setback_end_hour": 7, "outputs": ["heating_power_w"]}]},
-           "execution": {"run_dir": str(tmp_path / "run")}}
-    path = tmp_path / "base.yaml"
-    path.write_text(__import__("yaml").safe_dump(raw))
-    config = load_config(path)
+                                "setback_end_hour": 7, "outputs": ["heating_power_w"]}]}}
+    config = load_config(write_config(tmp_path, raw))
     hours = year_hours(config.model.year)
     start_hour = (hours - pd.Timedelta(hours=1)).hour
     office = pd.Series(((start_hour >= 9) & (start_hour < 17)).astype(float), index=hours)
@@ -541,13 +537,9 @@ def test_compiled_step_equals_the_numpy_step_with_every_kind_of_term(tmp_path):
     for scale, row in zip((0.5, 1.0, 2.0), rows):
         row.update({key: value * scale for key, value in extension_values.items()})
     samples = sample_columns(config, pd.DataFrame(rows, index=pd.RangeIndex(3, name="instance")))
-    from bpsflow.simulation.idf import model_objects
-
     cell = build_cell(config, field_values(config, model_objects(config.model), samples))
     assert cell.air_exchanges and cell.internal_gains
     assert any(s.adiabatic for s in cell.opaque)
-    from bpsflow.boundary import ensure_sequences
-
     ensure_sequences(config)
     network = build_network(cell)
     forcing = period_forcing(config, cell, config.model.periods[0], samples, tmp_path / "run")
@@ -559,8 +551,3 @@ def test_compiled_step_equals_the_numpy_step_with_every_kind_of_term(tmp_path):
     np.testing.assert_allclose(compiled.power, reference.power, rtol=1e-9, atol=1e-7)
     np.testing.assert_allclose(compiled.state, reference.state, rtol=0, atol=1e-9)
 
-
-def test_the_compiled_kernel_shares_the_network_constants():
-    from bpsflow.surrogate import kernel, network
-
-    assert (kernel.KELVIN, kernel.H_MIN) == (network.KELVIN, network.H_MIN)

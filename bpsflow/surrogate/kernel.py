@@ -20,8 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-#: Must match :mod:`bpsflow.surrogate.network` (asserted by the tests).
+from bpsflow.surrogate.forcing import SIGMA
+
+#: The surrogate's constants (both steps use them; numba compiles them in).
 KELVIN = 273.15
+#: EnergyPlus's lower limit on convection coefficients (W/m²K).
 H_MIN = 0.1
 
 
@@ -32,10 +35,10 @@ def _curve(c1: float, c2: float, c3: float, lower: float, upper: float, x: float
 
 @njit(cache=True, error_model="numpy")
 def _gap_conductance(t1: float, t2: float, e1: float, e2: float, width: float,
-                     pressure: float, sigma: float) -> float:
+                     pressure: float) -> float:
     """Air gap conductance (W/m²K), as :func:`bpsflow.surrogate.network._gap_conductance`."""
     k1, k2 = t1 + KELVIN, t2 + KELVIN
-    radiation = sigma * (k1 * k1 + k2 * k2) * (k1 + k2) / (1 / e1 + 1 / e2 - 1)
+    radiation = SIGMA * (k1 * k1 + k2 * k2) * (k1 + k2) / (1 / e1 + 1 / e2 - 1)
     mean = 0.5 * (k1 + k2)
     conductivity = 2.873e-3 + 7.760e-5 * mean
     viscosity = 3.723e-6 + 4.94e-8 * mean
@@ -85,7 +88,6 @@ class KernelConstants:
     air_coefficient: float
     air_history: np.ndarray      # (3,)
     dt: float
-    sigma: float
 
 
 def run_day(constants: KernelConstants, state: np.ndarray, history: np.ndarray,
@@ -124,7 +126,7 @@ def run_day(constants: KernelConstants, state: np.ndarray, history: np.ndarray,
              c.exterior_view, c.outside_wind, c.outside_natural, c.ventilation, c.volume,
              c.zone_wind_factor, c.exchange, c.exchange_outdoor, c.standard_density, c.c_dt,
              c.static_diagonal, c.chain_nodes, c.chain_start, c.chain_links, c.gap_chain,
-             c.gap_position, c.air_coefficient, c.air_history, c.dt, c.sigma)
+             c.gap_position, c.air_coefficient, c.air_history, c.dt)
     return new_state, air, power
 
 
@@ -136,7 +138,7 @@ def _run_day(state, history, air_out, power_out, t_out_all, t_sky_all, pressure_
              exterior_view, outside_wind, outside_natural, ventilation, volume,
              zone_wind_factor, exchange, exchange_outdoor, standard_density, c_dt,
              static_diagonal, chain_nodes, chain_start, chain_links, gap_chain, gap_position,
-             air_coefficient, air_history, dt, sigma):  # pragma: no cover - compiled
+             air_coefficient, air_history, dt):  # pragma: no cover - compiled
     n, size = state.shape
     steps = heat.shape[0]
     faces_count = faces.shape[0]
@@ -171,7 +173,7 @@ def _run_day(state, history, air_out, power_out, t_out_all, t_sky_all, pressure_
                     rhs[node] += internal[i, k, node]
             # inside faces: convection at the stratified adjacent air, long-wave to the star
             t_star = state[i, star_node] + KELVIN
-            linear = 4 * sigma * t_star ** 3
+            linear = 4 * SIGMA * t_star ** 3
             for j in range(faces_count):
                 node = faces[j]
                 adjacent = t_air + grad * dz[j]
@@ -187,7 +189,7 @@ def _run_day(state, history, air_out, power_out, t_out_all, t_sky_all, pressure_
                 diagonal[air_node] += g_conv[j]
                 diagonal[star_node] += g_rad[j]
             gap = _gap_conductance(state[i, pane_out], state[i, pane_in], window[i, 0],
-                                   window[i, 1], gap_width, pressure, sigma)
+                                   window[i, 1], gap_width, pressure)
             g_gap = window[i, 3] / (1 / gap + window[i, 2])
             diagonal[pane_out] += g_gap
             diagonal[pane_in] += g_gap
@@ -222,9 +224,9 @@ def _run_day(state, history, air_out, power_out, t_out_all, t_sky_all, pressure_
                                          exterior_view[x_index, 2])
                 eps = exterior[i, x_index, 1]
                 ks, ka, ky = t_s + KELVIN, t_out + KELVIN, t_sky + KELVIN
-                h_air = eps * sigma * (ks * ks + ka * ka) * (ks + ka) * (f_sky * (1 - beta)
+                h_air = eps * SIGMA * (ks * ks + ka * ka) * (ks + ka) * (f_sky * (1 - beta)
                                                                          + f_ground)
-                h_sky = eps * sigma * (ks * ks + ky * ky) * (ks + ky) * f_sky * beta
+                h_sky = eps * SIGMA * (ks * ks + ky * ky) * (ks + ky) * f_sky * beta
                 area = exterior[i, x_index, 0]
                 g_a, g_s = (h_conv + h_air) * area, h_sky * area
                 diagonal[node] += g_a + g_s

@@ -56,10 +56,8 @@ import numpy as np
 from bpsflow.surrogate import kernel
 from bpsflow.surrogate.cell import STANDARD_AIR_DENSITY, Cell, Curve
 from bpsflow.surrogate.forcing import SIGMA, PeriodForcing, solar_inputs
+from bpsflow.surrogate.kernel import H_MIN, KELVIN
 
-KELVIN = 273.15
-#: EnergyPlus's lower limit on convection coefficients (W/m²K).
-H_MIN = 0.1
 #: Air-node time schemes: (coefficient of T, coefficients of T1, T2, T3).
 AIR_SCHEMES = {1: (1.0, (1.0, 0.0, 0.0)), 3: (11 / 6, (3.0, -1.5, 1 / 3))}
 #: Initial temperature of every node (EnergyPlus starts zones and surfaces at 23 °C).
@@ -546,7 +544,7 @@ class _Stepper:
             chain_links=contiguous(self.chain_links, dtype=float),
             gap_chain=int(gap_chain), gap_position=int(gap_position),
             air_coefficient=float(coefficient), air_history=np.array(history, dtype=float),
-            dt=float(self.dt), sigma=float(SIGMA))
+            dt=float(self.dt))
         return self._kernel
 
     # Stepping ---------------------------------------------------------
