@@ -203,7 +203,11 @@ def test_two_real_runs_on_one_directory(tmp_path):
     shared = write_config(tmp_path / "a", raw)
     alone = write_config(tmp_path / "b", raw)
     first = _bpsflow("run", shared, "--no-progress", cwd=tmp_path)
-    time.sleep(0.5)
+    # the second starts once the first holds the lock (a fixed wait raced the first's start-up)
+    lock = tmp_path / "a" / "run" / rundir.LOCK_FILE
+    deadline = time.monotonic() + 60
+    while not lock.exists() and first.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
     second = _bpsflow("run", shared, "--no-progress", cwd=tmp_path)
     second_out, _ = second.communicate(timeout=300)
     first_out, _ = first.communicate(timeout=300)
