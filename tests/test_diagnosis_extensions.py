@@ -370,3 +370,34 @@ def test_new_extensions_are_nested_at_zero_on_energyplus(tmp_path):
     assert np.corrcoef(on_surrogate, on_energyplus)[0, 1] > 0.95
     assert np.sqrt(np.mean(on_surrogate ** 2)) / np.sqrt(np.mean(on_energyplus ** 2)) \
         == pytest.approx(1.0, abs=0.25)
+
+
+def test_gain_blocks_ignore_hours_at_which_the_output_cannot_respond():
+    """A heating power that is zero (the zone floats) hides a gain; those hours carry no weight.
+
+    An all-days 10-18 h gain shows in the heating residual only on the days the
+    heating runs at midday; on the others heating is zero in model and data,
+    and the residual is zero whatever the gain. Masked to the responsive
+    hours, the screen finds the all-days block and its level; every block
+    listed has a positive level (a gain cannot be negative).
+    """
+    rng = np.random.default_rng(11)
+    hours = pd.date_range("2025-11-03 01:00", periods=24 * 28, freq="h")
+    start = hours - pd.Timedelta(hours=1)
+    hour = np.asarray(start.hour)
+    block = (hour >= 10) & (hour < 18)
+    # heating runs at midday on a few dull days only, at random: on the rest it is off
+    dull_day = rng.random(28) < 0.3
+    responsive = ~block | dull_day[np.arange(len(hours)) // 24]
+    residual = np.where(responsive, -90.0 * block + rng.normal(0, 8.0, len(hours)), 0.0)
+    # the morning reheat after a gain-warmed day is lower: a negative block the screen skips
+    residual += 25.0 * ((hour >= 5) & (hour < 8))
+    blocks = gain_blocks(pd.Series(residual, index=hours), -1.0, count=3, responsive=responsive)
+    first = blocks[0][1]
+    assert (first["day_type"], first["start_hour"], first["end_hour"]) == ("all days", 10, 18)
+    assert first["level"] == pytest.approx(90.0, rel=0.1)
+    assert all(b["level"] > 0 for _, b in blocks)
+    # unmasked, the zero hours count against an every-day block: a single weekday whose
+    # middays happened to be dull wins instead
+    unmasked = gain_blocks(pd.Series(residual, index=hours), -1.0, count=3)
+    assert unmasked[0][1]["day_type"] != "all days"

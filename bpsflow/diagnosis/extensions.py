@@ -890,7 +890,8 @@ DAY_TYPES: dict[str, tuple[int, ...]] = {
 
 def gain_blocks(residual: pd.Series, output_sign: float,
                 fitted_jacobian: np.ndarray | None = None, count: int = 4,
-                overlap: float = 0.8) -> list[tuple[pd.DataFrame, dict]]:
+                overlap: float = 0.8,
+                responsive: np.ndarray | None = None) -> list[tuple[pd.DataFrame, dict]]:
     """On/off blocks (day type × hours) of an unmodelled gain that best explain the residuals.
 
     Every block ``[start, end)`` hours of every day type in :data:`DAY_TYPES`
@@ -905,7 +906,12 @@ def gain_blocks(residual: pd.Series, output_sign: float,
     squares, skipping blocks that share more than ``overlap`` of their hours
     (Jaccard) with a block already listed; the joint nonlinear refit of
     each decides. A block's profile is 1 in the block and 0 elsewhere, so
-    the fitted design level is the gain while it is on (W).
+    the fitted design level is the gain while it is on (W). ``responsive``
+    (bool, ``(n,)``) marks the hours at which the output can respond to a
+    gain at all: a heating power that is zero in both the model and the
+    measurement (the zone floats above its setpoint) does not move, so a
+    block's regressor is zero there and the screen compares blocks on the
+    hours that carry information.
 
     The 10 × 300 regressions share their base: the residual and the 168
     day-of-week × hour indicators are projected off the base once, and each
@@ -930,6 +936,8 @@ def gain_blocks(residual: pd.Series, output_sign: float,
     # indicators[:, 24 d + h]: the hour starts at h on day of week d
     indicators = np.zeros((len(y), 168))
     indicators[np.arange(len(y)), 24 * day + hour] = 1.0
+    if responsive is not None:
+        indicators *= np.asarray(responsive, dtype=float)[:, None]
     stacked = np.column_stack([y, indicators])
     projected = stacked - base @ np.linalg.lstsq(base, stacked, rcond=None)[0]
     y_res, z = projected[:, 0], projected[:, 1:]
@@ -963,6 +971,10 @@ def gain_blocks(residual: pd.Series, output_sign: float,
     ranked.sort(key=lambda item: item[0])
     chosen: list = []
     for _, day_type, a, b, level in ranked:
+        if level <= 0.0:
+            # a gain is non-negative: a block that only fits with a negative level would be
+            # refitted at zero, and it would crowd out the blocks that can explain a gain
+            continue
         block = np.isin(day, np.flatnonzero(DAY_TYPES[day_type])) & (hour >= a) & (hour < b)
         if all((block & c[4]).sum() / (block | c[4]).sum() < overlap for c in chosen):
             chosen.append((day_type, a, b, level, block))

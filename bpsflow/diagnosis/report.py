@@ -44,6 +44,15 @@ def untried_reason(d: Diagnosis) -> str | None:
             f"drivers")
 
 
+def _not_accepted(entry: dict) -> str:
+    pruning = entry.get("pruning")
+    if entry.get("pruned") and pruning:
+        return (f"pruned (beside the later causes: p = {pruning['p_value']:.2g}, out-of-fold "
+                f"CV(RMSE) {pruning['cvrmse_with']:.2%} with, {pruning['cvrmse_without']:.2%} "
+                f"without)")
+    return "no"
+
+
 def cause_summary(d: Diagnosis) -> str:
     """The cause's one sentence.
 
@@ -316,7 +325,7 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
                 + f" | {e['bic']['before']:.0f} → "
                 + (f"{e['bic']['after']:.0f}" if e["bic"]["after"] is not None
                    else f"(screen {e.get('screen_bic', float('nan')):.0f})")
-                + f" | {'**yes**' if e.get('accepted') else 'no'} |")
+                + f" | {'**yes**' if e.get('accepted') else _not_accepted(e)} |")
         for e in d.extensions:
             if e.get("accepted") and e.get("runner_up"):
                 r = e["runner_up"]

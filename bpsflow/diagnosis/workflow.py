@@ -564,10 +564,83 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
         left = [t.name for t in context.test(residual[d.calibration]) if t.significant]
         if left and result.verdict == "model_form":
             result.unexplained = left
+    _prune(context, result, announce)
     for entry in result.extensions:
         entry.setdefault("accepted", False)
     _finish(context, result)
     return result
+
+
+def _prune(context: _Context, result: Diagnosis, announce: Announce) -> None:
+    """Backward step: every accepted extension must still pass acceptance beside the others.
+
+    Forward selection accepts the best cause of each round given those
+    before it; an early one can stand in for effects found later (a gain
+    block that mimics stored heat before ``thermal_mass`` is fitted). With
+    two or more accepted, each is removed in turn (its size parameters at
+    their nested value, the rest refitted, one batch) and the full model is
+    tested against that reduced one by the same blocked cross-validation
+    as a forward step. The weakest that no longer passes is dropped and
+    the test repeats on the rest.
+    """
+    d, settings = context.data, context.settings
+    for sweep in range(1, 10):
+        accepted = [e for e in result.extensions if e.get("accepted")]
+        if len(accepted) < 2:
+            return
+        final = result.final
+        full_sample = context.sample_of(final.config, final.fit)
+        reduced: list[tuple[dict, list[Parameter], dict]] = []
+        for entry in accepted:
+            names = set(entry.get("parameter_names", {}).values())
+            own = [p for p in final.fitted if p.name in names]
+            if not own:
+                continue
+            sample = dict(full_sample)
+            for p in own:
+                sample[p.name] = float((p.provenance or {}).get("nested_at", 0.0))
+            reduced.append((entry, _without(final.fitted, own), sample))
+        if not reduced:
+            return
+        fits = context.fit(final.config, f"prune{sweep}", [
+            Problem(sample, fitted, d.y, d.calibration,
+                    {p.name: final.fit.named[p.name] for p in fitted})
+            for _, fitted, sample in reduced])
+        weakest = None
+        for (entry, fitted, sample), fit in zip(reduced, fits):
+            if fit.failed:
+                context.notes.append(f"pruning: the model without {entry['cause']} could not "
+                                     f"be refitted and the extension is kept: "
+                                     f"{_excerpt(fit.failure)}")
+                continue
+            without = Model(final.config, fitted, fit, f"prune{sweep}_{entry['cause']}")
+            cv = _cross_validate(context, final.config, sample, without,
+                                 [(final.fitted, final.fit)], 1000 + sweep).get(0)
+            if cv is None:
+                continue
+            p_value = float(cv["test"]["p_value"])
+            keeps = p_value < settings.gain_alpha and cv["cvrmse_after"] < cv["cvrmse_before"]
+            entry["pruning"] = {"p_value": p_value, "cvrmse_without": cv["cvrmse_before"],
+                                "cvrmse_with": cv["cvrmse_after"], "kept": bool(keeps)}
+            if not keeps and (weakest is None or p_value > weakest[0]):
+                weakest = (p_value, entry, without)
+        if weakest is None:
+            return
+        _, entry, without = weakest
+        entry["accepted"] = False
+        entry["pruned"] = True
+        result.final = without
+        _refitted_sizes(result, without.fit)
+        context.notes.append(f"{entry['cause']} was accepted in round {entry['round']} but no "
+                             f"longer improves the cross-validated fit beside the causes found "
+                             f"after it (p = {entry['pruning']['p_value']:.3g}): it is dropped")
+        announce(f"pruned {entry['cause']}: beside the other accepted causes it no longer "
+                 f"improves the out-of-fold fit (p = {entry['pruning']['p_value']:.3g})")
+        if result.cause.get("extension") == entry["name"]:
+            first = next(e for e in result.extensions if e.get("accepted"))
+            result.cause.update(extension=first["name"], driver=first["driver"],
+                                confidence=first.get("confidence"),
+                                runner_up=first.get("runner_up"))
 
 
 def _continue_fit(context: _Context, result: Diagnosis, current: Model,
@@ -601,19 +674,23 @@ def _continue_fit(context: _Context, result: Diagnosis, current: Model,
     model = Model(current.config, list(current.fitted), fit, label)
     if result.final is not result.base:
         result.final = model
-    for entry in result.extensions:
-        if entry.get("accepted"):
-            # an accepted extension's size is the continued fit's
-            entry.setdefault("fitted_when_accepted", dict(entry["fitted"]))
-            entry["fitted"] = {reported: float(fit.named[name]) for reported, name
-                               in entry.get("parameter_names", {}).items()
-                               if name in fit.named}
+    _refitted_sizes(result, fit)
     context.notes.append(f"round {round_number}: a candidate fitted at zero improved the fit "
                          f"(BIC {before:.1f} -> {after:.1f}): the current model's fit had not "
                          f"converged and was continued from there")
     announce(f"the current model's fit is continued from a candidate fitted at zero: BIC "
              f"{before:.1f} -> {after:.1f}")
     return model
+
+
+def _refitted_sizes(result: Diagnosis, fit: Fit) -> None:
+    """Accepted extensions' sizes from a later fit of the final model (continued or pruned)."""
+    for entry in result.extensions:
+        if entry.get("accepted"):
+            entry.setdefault("fitted_when_accepted", dict(entry["fitted"]))
+            entry["fitted"] = {reported: float(fit.named[name]) for reported, name
+                               in entry.get("parameter_names", {}).items()
+                               if name in fit.named}
 
 
 def _suggestive(context: _Context, tests: list) -> list:
@@ -995,10 +1072,15 @@ def _gain_candidates(context: _Context, current: Model, driver: str) -> list[Can
     family = "internal_gain_schedule"
     zone = diagnosis_zone(config, d.output, family)
     residual = d.y - current.fit.prediction
-    blocks = gain_blocks(pd.Series(residual[d.calibration], index=d.timestamps[d.calibration]),
+    cal = d.calibration
+    # an output that is zero in the model and the data (a heating power while the zone
+    # floats) cannot respond to a gain at that hour
+    still = 1e-6 * max(float(np.max(np.abs(d.y[cal]))), 1e-12)
+    responsive = (np.abs(current.fit.prediction[cal]) > still) | (np.abs(d.y[cal]) > still)
+    blocks = gain_blocks(pd.Series(residual[cal], index=d.timestamps[cal]),
                          output_sign(config, d.output),
-                         fitted_jacobian=current.fit.jacobian[d.calibration],
-                         count=context.settings.gain_blocks)
+                         fitted_jacobian=current.fit.jacobian[cal],
+                         count=context.settings.gain_blocks, responsive=responsive)
     known = {p.name for p in config.parameters}
     variants = []
     for number, (profile, block) in enumerate(blocks, start=1):
