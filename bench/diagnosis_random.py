@@ -995,9 +995,16 @@ def run_truth(truth: Truth, work: Path, jobs: int | None = None) -> dict:
     except Exception as exc:                                   # noqa: BLE001
         return failed_row(truth, built, "truth failed", _error(exc), 0.0)
     started = time.perf_counter()
+    log = directory / "diagnosis.log"
+
+    def announce(text: str) -> None:
+        # the diagnosis's own account of each step, kept to explain a miss afterwards
+        with log.open("a", encoding="utf-8") as handle:
+            handle.write(text + "\n")
+
     try:
         result = diagnose(config, frame, directory / "out", backend=truth.backend, jobs=jobs,
-                          announce=lambda _text: None)
+                          announce=announce)
     except Exception as exc:                                   # noqa: BLE001
         (directory / "crash.txt").write_text(traceback.format_exc())
         row = failed_row(truth, built, "crash", _error(exc), time.perf_counter() - started)
