@@ -115,3 +115,62 @@ def test_cross_validated_acceptance_keeps_its_size_and_finds_a_weekend_effect():
     print(f"weekend regressor: {false_alarms} of {series} false alarms, found {found} of 50")
     assert false_alarms / series <= 0.07, false_alarms
     assert found / 50 >= 0.9, found
+
+
+def _linear_fit(design: np.ndarray, measured: np.ndarray, jacobian: np.ndarray):
+    """A Fit of a model linear in two parameters (range 0-10), as fit_many reports one."""
+    from pathlib import Path
+
+    from bpsflow.config import load_config
+    from bpsflow.diagnosis.fitting import Fit
+    from bpsflow.distributions import Uniform
+
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "diagnosis.yaml")
+    parameters = [p.model_copy(update={"distribution": Uniform(type="uniform", lower=0.0,
+                                                              upper=10.0)})
+                  for p in config.parameters[:2]]
+    values = np.linalg.lstsq(design, measured, rcond=None)[0]
+    prediction = design @ values
+    residual_std = float(np.std(measured - prediction, ddof=2))
+    covariance = residual_std ** 2 * np.linalg.pinv(jacobian.T @ jacobian)
+    return parameters, Fit(parameters=parameters, values=values, prediction=prediction,
+                           jacobian=jacobian, covariance=covariance, residual_std=residual_std,
+                           objective=0.0, evaluations=1, seconds=0.0, iterations=1)
+
+
+def test_linearised_fold_refits_are_exact_for_a_linear_model_and_bounded_for_a_bad_jacobian():
+    """The fold refit of the linearised cross-validation (EnergyPlus's).
+
+    For a model linear in its parameters, each fold's refit is the exact least
+    squares without that fold. A finite-difference Jacobian with one column
+    hundreds of times too large over one week (a setpoint switch inside the
+    difference step) must not let that fold's refit predict it wildly: the
+    step stays within a few standard errors, so the out-of-fold error stays
+    near the fit's own, where an unbounded step multiplies it.
+    """
+    from scipy.optimize import lsq_linear
+
+    from bpsflow.diagnosis.workflow import _gauss_newton_refit
+
+    rng = np.random.default_rng(5)
+    n = len(HOURS)
+    design = np.column_stack([1.0 + rng.random(n), np.sin(np.arange(n) * 2 * np.pi / 24) + 1.5])
+    measured = design @ np.array([4.0, 6.0]) + rng.normal(0, 0.3, n)
+    folds = crossval.day_blocks(HOURS, _heldout())
+    parameters, fit = _linear_fit(design, measured, design)
+    for number in range(folds.max()):
+        train = folds != number
+        exact = design @ np.linalg.lstsq(design[train], measured[train], rcond=None)[0]
+        np.testing.assert_allclose(_gauss_newton_refit(measured, fit, parameters, train), exact,
+                                   rtol=1e-6)
+    corrupted = design.copy()
+    corrupted[folds == 0, 1] *= 500.0
+    parameters, fit = _linear_fit(design, measured, corrupted)
+    own = np.sqrt(np.mean((measured - fit.prediction)[folds == 0] ** 2))
+    bounded = _gauss_newton_refit(measured, fit, parameters, folds != 0)
+    assert np.sqrt(np.mean((measured - bounded)[folds == 0] ** 2)) < 1.5 * own
+    jacobian = fit.jacobian[folds != 0]
+    step = lsq_linear(jacobian, (measured - fit.prediction)[folds != 0],
+                      bounds=(0.0 - fit.values, 10.0 - fit.values)).x
+    unbounded = fit.prediction + fit.jacobian @ step
+    assert np.sqrt(np.mean((measured - unbounded)[folds == 0] ** 2)) > 3 * own
