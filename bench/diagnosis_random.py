@@ -777,6 +777,13 @@ def synthesise(truth: Truth, base: Path, directory: Path, work: Path, *,
                     f"the hidden {', '.join(kinds)} change {output} by "
                     f"{np.std(series - plain):.3g} W (std) on the {truth.backend}: it does not "
                     f"simulate them")
+            if multiple < REALISED_FLOOR * effect.multiple:
+                # rescaling would make a physically absurd truth (a gain of hundreds of kW)
+                # out of an effect this output barely sees in this scenario
+                raise TruthUnsupported(
+                    f"the hidden effect realises {multiple / effect.multiple:.3g} of the size "
+                    f"the bench's own physics gave it on {output} (floor {REALISED_FLOOR}): "
+                    f"it barely reaches this output in this scenario")
             realised.append(round(multiple / effect.multiple, 3))
             scales.append(effect.multiple / multiple)
         built = build_truth(truth, scales)
@@ -794,6 +801,10 @@ def synthesise(truth: Truth, base: Path, directory: Path, work: Path, *,
                       Noise(kind="relative", bound=noise_bound, autocorrelation=truth.phi),
                       np.random.default_rng(truth.noise_seed)) if noise_bound else frame[output]
     return frame.assign(**{output: noisy}), built, realised
+
+
+#: The least share of its own-physics size an effect must realise on the backend to be rescaled.
+REALISED_FLOOR = 0.1
 
 
 class TruthUnsupported(Exception):
