@@ -103,7 +103,14 @@ class DiagnosisSettings(BaseModel):
 
     ``gain_alpha`` is the one-sided level of the out-of-fold
     forecast-encompassing test an extension must pass (besides a lower BIC and a lower held-out
-    CV(RMSE)) to be accepted.
+    CV(RMSE)) to be accepted; after the last round every accepted extension
+    must pass it again beside the others (backward pruning).
+
+    ``cv_refit``: how each cross-validation fold is refitted: ``simulated``
+    (a few Levenberg–Marquardt steps, one batch; the surrogate's default) or
+    ``linearised`` (one bounded Gauss–Newton step on the calibration fit's
+    Jacobian, at most 3 standard errors per parameter; EnergyPlus's default,
+    as it costs no runs).
     """
 
     model_config = ConfigDict(extra="forbid")
