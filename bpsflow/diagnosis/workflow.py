@@ -79,6 +79,7 @@ from bpsflow.diagnosis.signatures import (
     signatures,
 )
 from bpsflow.errors import BpsflowError
+from bpsflow.metrics import rmse
 from bpsflow.simulation.backend import get_backend
 from bpsflow.simulation.ensemble import BatchFailure
 
@@ -550,9 +551,7 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
         accepted_causes.add(best["cause"])
         current = result.final = model
         if not result.cause.get("extension"):
-            result.cause.update(extension=best["name"], driver=best["driver"],
-                                confidence=best.get("confidence"),
-                                runner_up=best.get("runner_up"))
+            _name_cause(result, best)
         announce(f"accepted {best['cause']} ({_fitted_text(best['fitted'])}): out-of-fold "
                  f"CV(RMSE) {best['cross_validation']['cvrmse_before']:.3%} -> "
                  f"{best['cross_validation']['cvrmse_after']:.3%}"
@@ -637,10 +636,13 @@ def _prune(context: _Context, result: Diagnosis, announce: Announce) -> None:
         announce(f"pruned {entry['cause']}: beside the other accepted causes it no longer "
                  f"improves the out-of-fold fit (p = {entry['pruning']['p_value']:.3g})")
         if result.cause.get("extension") == entry["name"]:
-            first = next(e for e in result.extensions if e.get("accepted"))
-            result.cause.update(extension=first["name"], driver=first["driver"],
-                                confidence=first.get("confidence"),
-                                runner_up=first.get("runner_up"))
+            _name_cause(result, next(e for e in result.extensions if e.get("accepted")))
+
+
+def _name_cause(result: Diagnosis, entry: dict) -> None:
+    """The verdict's cause is the accepted extension ``entry`` (the first one accepted)."""
+    result.cause.update(extension=entry["name"], driver=entry["driver"],
+                        confidence=entry.get("confidence"), runner_up=entry.get("runner_up"))
 
 
 def _continue_fit(context: _Context, result: Diagnosis, current: Model,
@@ -877,12 +879,8 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
                 for e in shortlist]
     fits = context.fit(config, "parameters", problems)
     before = {t.name: t.share for t in significant}
-    held_out = ~d.calibration
-
-    def held_out_rmse(prediction: np.ndarray) -> float:
-        return float(np.sqrt(np.mean((d.y[held_out] - prediction[held_out]) ** 2)))
-
-    rmse_before = held_out_rmse(current.fit.prediction) if held_out.any() else np.inf
+    held_out = ~d.calibration           # never empty (prepare requires 24 hours)
+    rmse_before = rmse(d.y[held_out], current.fit.prediction[held_out])
     best = None
     for e, fit in zip(shortlist, fits):
         if fit.failed:
@@ -897,8 +895,7 @@ def _parameter_check(context: _Context, result: Diagnosis, current: Model,
         halved = all(shares.get(name, 0.0) <= 0.5 * share for name, share in before.items())
         # a refit that removes the calibration structure but predicts the held-out days
         # worse has compensated, not explained (a fitted input bent to mimic missing physics)
-        rmse_after = held_out_rmse(fit.prediction) if held_out.any() else -np.inf
-        generalises = bool(rmse_after < rmse_before)
+        generalises = rmse(d.y[held_out], fit.prediction[held_out]) < rmse_before
         explains = bool(not left and halved and generalises)
         record = next(r for r in result.parameter_check if r["name"] == e.name)
         record.update(refitted=float(fit.named[e.name]), structure_left=left,
