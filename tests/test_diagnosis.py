@@ -894,3 +894,54 @@ def test_hidden_effect_on_energyplus(effect, value, tmp_path):
     accepted = next(e for e in result.extensions if e["accepted"])
     assert accepted["fitted"][MEASURE[effect]] == pytest.approx(value, rel=0.15)
     assert result.gain["after"] < result.gain["before"]
+
+
+def test_a_building_level_output_puts_extensions_in_the_largest_conditioned_zone():
+    """A meter cannot tell zones apart: the conditioned zone with most floor (× multiplier)."""
+    from bpsflow.diagnosis.extensions import (
+        building_level_zone,
+        diagnosis_zone,
+        zone_floor_areas,
+    )
+    from bpsflow.simulation.idf import parse_idf_text
+
+    floors = """
+BuildingSurface:Detailed, West Floor, Floor, Ext, West Room, , Ground, , NoSun, NoWind, 0, 4,
+    0, 0, 0, 0, 5, 0, 4, 5, 0, 4, 0, 0;
+BuildingSurface:Detailed, East Floor, Floor, Ext, East Room, , Ground, , NoSun, NoWind, 0, 4,
+    0, 5, 0, 0, 8, 0, 4, 8, 0, 4, 5, 0;
+Zone, Plenum, 0, 0, 0, 3, 1, 1, autocalculate, autocalculate, 200;
+"""
+    model = parse_idf_text(TWO_ZONES + floors)
+    areas = zone_floor_areas(model)
+    assert areas["West Room"] == pytest.approx(20.0) and areas["East Room"] == pytest.approx(12.0)
+    assert areas["Plenum"] == pytest.approx(200.0)          # the Zone's own Floor Area field
+    meter = _stub_config(None)
+    # the plenum has neither equipment nor a thermostat: the west room is the largest
+    assert diagnosis_zone(meter, "heating_w", model=model) == "West Room"
+    assert building_level_zone(meter, "heating_w")
+    assert not building_level_zone(_stub_config("East Ideal Loads"), "heating_w")
+    assert not building_level_zone(_stub_config(None, zone="East Room"), "heating_w")
+    # a zone multiplier counts: ten identical east rooms outweigh one west room
+    multiplied = parse_idf_text(TWO_ZONES.replace(
+        "Zone, East Room, 0, 5, 0, 0, 1, 1,", "Zone, East Room, 0, 5, 0, 0, 1, 10,") + floors)
+    assert diagnosis_zone(meter, "heating_w", model=multiplied) == "East Room"
+
+
+def test_the_response_to_a_gain_is_read_from_the_model_not_the_output_name():
+    """A gas meter heats (falls with outdoor warmth, falls with a gain) whatever its name."""
+    from types import SimpleNamespace
+
+    from bpsflow.config import OutputVariable
+    from bpsflow.diagnosis.workflow import output_sign
+
+    outdoor = np.linspace(-5.0, 15.0, 200)
+    config = SimpleNamespace(outputs={"gas_kwh": OutputVariable(meter="NaturalGas:Facility"),
+                                      "room_c": OutputVariable(variable="Zone Mean Air "
+                                                               "Temperature", key="Room")})
+    assert output_sign(config, "gas_kwh", 40.0 - 2.0 * outdoor, outdoor) == -1.0
+    assert output_sign(config, "room_c", 20.0 + 0.1 * outdoor, outdoor) == 1.0
+    # no usable correlation: the meter's name decides, and a meter has no variable name
+    assert output_sign(config, "gas_kwh", np.ones(200), outdoor) == 1.0
+    heating = SimpleNamespace(outputs={"q": OutputVariable(meter="Heating:EnergyTransfer")})
+    assert output_sign(heating, "q") == -1.0

@@ -283,6 +283,58 @@ def model_zones(model: IdfModel) -> list[str]:
     return [o.name for o in model.of_type("ZONE") if o.name]
 
 
+def zone_floor_areas(model: IdfModel) -> dict[str, float]:
+    """Each zone's floor area times its multiplier (m²), from its floor surfaces.
+
+    Detailed floors (``BuildingSurface:Detailed`` of type Floor,
+    ``Floor:Detailed``) give their polygon's area; a zone without any falls
+    back to the ``Zone`` object's own Floor Area field when it is a number.
+    Zones with neither are left out.
+    """
+    from bpsflow.simulation.idf import polygon_area
+
+    zones = {z.name.upper(): z for z in model.of_type("ZONE") if z.name}
+    areas: dict[str, float] = {}
+    for object_type, (zone_at, _, _, vertex_at) in _DETAILED.items():
+        for obj in model.of_type(object_type):
+            is_floor = object_type == "FLOOR:DETAILED" or _field(obj, 1).upper() == "FLOOR"
+            zone = zones.get(_field(obj, zone_at).upper())
+            if not is_floor or zone is None:
+                continue
+            values = [_number(v, 0.0) for v in obj.fields[vertex_at:] if v.strip()]
+            points = [(values[i], values[i + 1], values[i + 2])
+                      for i in range(0, len(values) - 2, 3)]
+            if len(points) >= 3:
+                areas[zone.name] = areas.get(zone.name, 0.0) + polygon_area(points)
+    for zone in zones.values():
+        # Zone: Name, Direction of Relative North, X, Y, Z Origin, Type, Multiplier,
+        # Ceiling Height, Volume, Floor Area
+        if zone.name not in areas and _number(_field(zone, 9), 0.0) > 0:
+            areas[zone.name] = _number(_field(zone, 9), 0.0)
+        if zone.name in areas:
+            areas[zone.name] *= max(_number(_field(zone, 6), 1.0), 1.0)
+    return areas
+
+
+def conditioned_zones(model: IdfModel) -> list[str]:
+    """Zones with equipment or a thermostat (not a plenum), in file order; [] if none say so."""
+    zones = model_zones(model)
+    named = {o.fields[0].strip().upper() for o in model.of_type("ZONEHVAC:EQUIPMENTCONNECTIONS")
+             if o.fields}
+    named |= {_field(o, 1).upper() for o in model.of_type("ZONECONTROL:THERMOSTAT")}
+    return [zone for zone in zones if zone.upper() in named]
+
+
+def building_level_zone(config: Config, output: str) -> bool:
+    """Whether the extensions' zone was chosen for a building-level output, not given or named."""
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+
+    settings = getattr(config, "diagnosis", None) or DiagnosisSettings()
+    variable = config.outputs.get(output)
+    return not settings.zone and not settings.extension_zones \
+        and not getattr(variable, "key", None)
+
+
 def zone_of_key(model: IdfModel, key: str | None) -> str | None:
     """The zone an output variable's ``key`` refers to, read from the model; ``None`` if none.
 
@@ -328,7 +380,10 @@ def diagnosis_zone(config: Config, output: str | None = None, extension: str | N
 
     In this order: ``diagnosis.extension_zones[extension]``, ``diagnosis.zone``,
     the zone the diagnosed ``output`` refers to (:func:`zone_of_key` of its
-    ``key``), the model's only zone.
+    ``key``), the model's only zone, and for a building-level output (a
+    meter, no key) the conditioned zone with the most floor area
+    (:func:`zone_floor_areas`, :func:`conditioned_zones`): such an output
+    cannot tell zones apart.
 
     Parameters
     ----------
@@ -346,8 +401,8 @@ def diagnosis_zone(config: Config, output: str | None = None, extension: str | N
     ------
     BpsflowError
         A configured zone is not a ``Zone`` of the model, or the model has
-        several zones and neither the settings nor the output pick one (the
-        message names ``diagnosis.zone`` and lists the zones).
+        several zones and neither the settings, the output nor the floors
+        pick one (the message names ``diagnosis.zone`` and lists the zones).
     """
     from bpsflow.diagnosis.settings import DiagnosisSettings
     from bpsflow.simulation.idf import model_objects
@@ -374,8 +429,17 @@ def diagnosis_zone(config: Config, output: str | None = None, extension: str | N
         return referred
     if len(zones) == 1:
         return zones[0]
+    if not output_key:
+        # a building-level output (a meter): every zone's heat balance reaches it, so the
+        # zone of a cause cannot be told from it; the zone holding most floor area stands
+        # for them (building_level_zone says so in the report)
+        areas = zone_floor_areas(model)
+        conditioned = conditioned_zones(model) or zones
+        if any(areas.get(zone, 0.0) > 0 for zone in conditioned):
+            return max(conditioned, key=lambda zone: areas.get(zone, 0.0))
     said = (f"the output '{output}' (key '{output_key}') refers to none of them" if output_key
-            else "the diagnosed output names none of them")
+            else "the diagnosed output names none of them and the model's floors give no "
+                 "zone areas")
     raise BpsflowError(f"diagnosis.zone: the model has {len(zones)} zones ({listed}) and {said}; "
                        f"set diagnosis.zone (or diagnosis.extension_zones) to the zone the "
                        f"candidate extensions are written for", source=config.source)

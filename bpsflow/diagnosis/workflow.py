@@ -40,6 +40,7 @@ Four steps (DESIGN.md §8; seed §1.1.1.1, §2.1, §4.3.1):
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,6 +55,7 @@ from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (
     EXTENSIONS,
     block_profile,
+    building_level_zone,
     diagnosis_zone,
     extend_config,
     facade_irradiance,
@@ -192,10 +194,32 @@ def indoor_temperature(config: Config, measured: pd.DataFrame,
     return heating
 
 
-def output_sign(config: Config, output: str) -> float:
-    """The output's response to an added heat gain: −1 for heating power, +1 otherwise."""
-    variable = config.outputs[output].variable.lower() if output in config.outputs else output
-    return -1.0 if "heating" in variable or "heating" in output.lower() else 1.0
+#: Smallest |correlation| of the prediction with the outdoor temperature that tells its sign.
+SIGN_CORRELATION = 0.2
+
+
+def output_sign(config: Config, output: str, prediction: np.ndarray | None = None,
+                outdoor_temperature_c: np.ndarray | None = None) -> float:
+    """The output's response to an added heat gain: −1 for a heating energy or power, +1 otherwise.
+
+    Read from the model first: an output that falls as the outdoor air warms
+    (a heating load, whatever its meter or fuel is called: a gas meter, a
+    district-heating meter, a boiler's energy) also falls when heat is added
+    indoors; one that rises (an air temperature, a cooling load) rises.
+    When the model's ``prediction`` hardly follows ``outdoor_temperature_c``
+    (|r| below :data:`SIGN_CORRELATION`), the names decide: the output's
+    variable or meter, or its own name, containing ``heating``.
+    """
+    if prediction is not None and outdoor_temperature_c is not None:
+        prediction = np.asarray(prediction, dtype=float)
+        outdoor = np.asarray(outdoor_temperature_c, dtype=float)
+        if np.std(prediction) > 0 and np.std(outdoor) > 0:
+            correlation = float(np.corrcoef(prediction, outdoor)[0, 1])
+            if abs(correlation) >= SIGN_CORRELATION:
+                return float(np.sign(correlation))
+    spec = config.outputs.get(output)
+    names = [output] + ([spec.variable or "", spec.meter or ""] if spec is not None else [])
+    return -1.0 if any("heating" in name.lower() for name in names) else 1.0
 
 
 @dataclass
@@ -271,6 +295,17 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
     context = _Context(config, data[0], settings, backend, jobs, Path(out_dirs[0]),
                        step or (lambda label: None))
     fitted = fitted_parameters(config, settings)
+    # the extensions' zones are read before any simulation: a model whose zone cannot be
+    # told fails now, not after the base fit
+    zones = {family: diagnosis_zone(config, data[0].output, family)
+             for family in settings.extensions}
+    if zones and building_level_zone(config, data[0].output):
+        zone = next(iter(zones.values()))
+        context.notes.append(
+            f"'{data[0].output}' is a building-level output (no zone key): it cannot tell "
+            f"which zone a cause sits in, so candidate extensions are written for the zone "
+            f"with the most floor area, '{zone}' (diagnosis.zone picks another)")
+        announce(context.notes[-1])
     announce(f"fitting {len(fitted)} existing parameter(s) to {data[0].output} "
              f"({int(data[0].calibration.sum())} calibration hours, "
              f"{int((~data[0].calibration).sum())} held out)"
@@ -279,7 +314,8 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
     try:
         fits = _base_fits(context, config, fitted, data)
     except Exception as exc:
-        if isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure):
+        if (isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure)) \
+                or os.environ.get("BPSFLOW_DEBUG"):
             raise
         message = exc.message if isinstance(exc, BpsflowError) else f"{type(exc).__name__}: {exc}"
         raise BpsflowError(f"diagnose: the fit of the existing parameters failed, so there is "
@@ -440,7 +476,8 @@ def _diagnose_one(context: _Context, base: Model, announce: Announce) -> Diagnos
     try:
         return _diagnose_rounds(context, result, base, announce)
     except Exception as exc:
-        if isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure):
+        if (isinstance(exc, BpsflowError) and not isinstance(exc, BatchFailure)) \
+                or os.environ.get("BPSFLOW_DEBUG"):
             raise
         message = exc.message if isinstance(exc, BpsflowError) else \
             f"{type(exc).__name__}: {exc}"
@@ -1075,7 +1112,9 @@ def _gain_candidates(context: _Context, current: Model, driver: str) -> list[Can
     still = 1e-6 * max(float(np.max(np.abs(d.y[cal]))), 1e-12)
     responsive = (np.abs(current.fit.prediction[cal]) > still) | (np.abs(d.y[cal]) > still)
     blocks = gain_blocks(pd.Series(residual[cal], index=d.timestamps[cal]),
-                         output_sign(config, d.output),
+                         output_sign(config, d.output, current.fit.prediction[cal],
+                                     d.drivers["outdoor_air_temperature"].to_numpy()[cal]
+                                     if "outdoor_air_temperature" in d.drivers else None),
                          fitted_jacobian=current.fit.jacobian[cal],
                          count=context.settings.gain_blocks, responsive=responsive)
     known = {p.name for p in config.parameters}
