@@ -398,3 +398,29 @@ def test_bundled_idd_extract_matches_the_installed_idd():
     for key, (_, fields) in types.items():
         assert object_fields(key) == tuple(fields), key
 
+
+
+def test_a_misspelt_output_names_the_closest_names_energyplus_reports(tmp_path):
+    """A run that reported nothing for a typo'd meter says which names the model has."""
+    import numpy as np
+
+    from bpsflow.errors import BpsflowError
+    from bpsflow.simulation.energyplus import tidy_outputs
+
+    config = load_config(ROOT / "configs" / "i600.yaml")
+    output = config.model.tests[0].outputs[0]
+    spec = config.outputs[output].model_copy(update={"variable": None, "key": None,
+                                                      "meter": "Heating:EnergyTransfr"})
+    config.outputs[output] = spec
+    header = "Program Version,EnergyPlus\nVar Type (reported time step),Var Report Type,Name\n"
+    (tmp_path / "eplusout.mdd").write_text(
+        header + "Zone,Meter,Heating:EnergyTransfer [J]\nZone,Meter,Electricity:Facility [J]\n")
+    (tmp_path / "eplusout.rdd").write_text(header + "Zone,Average,Zone Mean Air Temperature [C]\n")
+    # nothing reported at all: the columns have no string type
+    empty = pd.DataFrame({"timestamp": np.array([], dtype="datetime64[ns]"),
+                          "variable": np.array([], dtype=float), "key": np.array([], dtype=float),
+                          "is_meter": np.array([], dtype=int), "frequency": np.array([], dtype=float),
+                          "value": np.array([], dtype=float)})
+    with pytest.raises(BpsflowError, match=r"outputs\.\w+ \(meter Heating:EnergyTransfr.*did you "
+                                           r"mean 'Heating:EnergyTransfer'\?"):
+        tidy_outputs(config, 0, empty, tmp_path)

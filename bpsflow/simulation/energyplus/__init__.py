@@ -42,12 +42,56 @@ if TYPE_CHECKING:
     from bpsflow.config import Config
 
 
-def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame) -> pd.DataFrame:
+def reported_names(directory: Path) -> tuple[list[str], list[str]]:
+    """(variables, meters) EnergyPlus says it can report for a run: its ``.rdd`` and ``.mdd``.
+
+    Lines are ``Zone,Average,Zone Mean Air Temperature [C]``; the names are
+    returned without the unit. Empty lists when the files are missing.
+    """
+    found: list[list[str]] = []
+    for name in ("eplusout.rdd", "eplusout.mdd"):
+        path = directory / name
+        lines = path.read_text(errors="replace").splitlines()[2:] if path.is_file() else []
+        found.append(sorted({line.split(",", 2)[-1].rsplit(" [", 1)[0].strip()
+                             for line in lines if line.count(",") >= 2}))
+    return found[0], found[1]
+
+
+def _missing_output_hint(spec, raw: pd.DataFrame, window: np.ndarray,
+                         variables: np.ndarray, directory: Path | None) -> str:
+    """What a user can do about an output with no values: its keys, or the closest names."""
+    import difflib
+
+    named = window & (variables == str(spec.variable or spec.meter).upper())
+    reported = sorted(set(raw["key"].astype(str).to_numpy()[named]))
+    if reported and spec.variable:
+        return f"; EnergyPlus reported it for keys {reported}"
+    if directory is not None:
+        variable_names, meter_names = reported_names(directory)
+        names = meter_names if spec.meter is not None else variable_names
+        if names:
+            wanted = str(spec.meter or spec.variable)
+            close = difflib.get_close_matches(wanted, names, n=3, cutoff=0.6) or \
+                [n for n in names if n.upper() == wanted.upper()]
+            kind = "meter" if spec.meter is not None else "variable"
+            if close:
+                return (f"; the model has no {kind} of that name: did you mean "
+                        + " or ".join(f"'{c}'" for c in close) + "?")
+            return (f"; the model has no {kind} of that name (its {len(names)} {kind}s are "
+                    f"listed in eplusout.{'mdd' if spec.meter is not None else 'rdd'})")
+    return "; check the name against the model's .rdd/.mdd lists"
+
+
+def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame,
+                 directory: Path | None = None) -> pd.DataFrame:
     """Turn raw EnergyPlus values into tidy rows for each test's window.
 
     A test's window is its whole span (warm-up days included): interval-ending
     timestamps after the first day's 00:00 up to the last day + 1 00:00.
     Consumers pick the evaluated days with :func:`bpsflow.config.test_dates`.
+
+    ``directory`` is the run's folder: when an output has no values, its
+    ``.rdd``/``.mdd`` lists give the closest names EnergyPlus knows.
 
     Raises
     ------
@@ -57,8 +101,9 @@ def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame) -> pd.D
     # Plain arrays, masks combined per test and output: a few hundred microseconds per
     # instance where DataFrame filtering cost tens of milliseconds.
     stamps = raw["timestamp"].to_numpy()
-    variables = raw["variable"].str.upper().to_numpy()
-    keys = raw["key"].str.upper().to_numpy()
+    # astype(str): a run that reported nothing gives empty columns of no string type
+    variables = raw["variable"].astype(str).str.upper().to_numpy()
+    keys = raw["key"].astype(str).str.upper().to_numpy()
     is_meter = raw["is_meter"].to_numpy() == 1
     frequencies = raw["frequency"].to_numpy()
     values = raw["value"].to_numpy(dtype=float)
@@ -77,10 +122,7 @@ def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame) -> pd.D
                 rows = wanted & ~is_meter & (variables == str(spec.variable).upper()) \
                     & (keys == str(spec.key).upper())
             if not rows.any():
-                named = window & (variables == str(spec.variable or spec.meter).upper())
-                reported = sorted(set(raw["key"].to_numpy()[named]))
-                hint = (f"; EnergyPlus reported it for keys {reported}" if reported and spec.variable
-                        else "; check the name against the model's .rdd/.mdd lists")
+                hint = _missing_output_hint(spec, raw, window, variables, directory)
                 raise BpsflowError(
                     f"outputs.{output} ({spec.label}, {spec.frequency}) has no values in the "
                     f"simulation results for test {test.name}{hint}", source=config.source)
@@ -129,7 +171,8 @@ def run_instance(config: Config, instance: int | str, sample: dict[str, float], 
             frames.append(read_outputs(idf.parent / "eplusout.sql", config.model.year))
             record.read_seconds += time.perf_counter() - read_started
         read_started = time.perf_counter()
-        tidy = tidy_outputs(config, instance, pd.concat(frames, ignore_index=True))
+        tidy = tidy_outputs(config, instance, pd.concat(frames, ignore_index=True),
+                            next(iter(files.idfs.values())).parent)
         record.read_seconds += time.perf_counter() - read_started
         record.status = "ok"
     except BpsflowError as exc:
