@@ -16,6 +16,7 @@ from pathlib import Path
 import typer
 import yaml
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from bpsflow.errors import BpsflowError
@@ -42,7 +43,10 @@ def _friendly(func):
         except (typer.Exit, typer.Abort, typer.BadParameter):
             raise
         except BpsflowError as exc:
-            err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False, soft_wrap=True)
+            # escape: messages quote the user's text and ranges like [low, high], which rich
+            # would otherwise read as markup and drop
+            err_console.print(f"[bold red]error:[/bold red] {escape(str(exc))}", highlight=False,
+                              soft_wrap=True)
             raise typer.Exit(code=2) from None
         except KeyboardInterrupt:
             err_console.print("[yellow]interrupted: finished instances are kept; run the same "
@@ -52,7 +56,7 @@ def _friendly(func):
             # A file the user named (or the run directory) cannot be read or written:
             # say which and why, as for any other bad input.
             where = exc.filename if exc.filename is not None else "a file"
-            err_console.print(f"[bold red]error:[/bold red] {where}: {exc.strerror or exc}",
+            err_console.print(f"[bold red]error:[/bold red] {escape(f'{where}: {exc.strerror or exc}')}",
                               highlight=False, soft_wrap=True)
             raise typer.Exit(code=2) from None
         except Exception as exc:
@@ -60,7 +64,8 @@ def _friendly(func):
                 raise
             # A defect of bpsflow, not of the input: no traceback on the user's screen,
             # but enough to report it, and the way to see the traceback.
-            err_console.print(f"[bold red]internal error:[/bold red] {type(exc).__name__}: {exc} "
+            err_console.print(f"[bold red]internal error:[/bold red] "
+                              f"{escape(f'{type(exc).__name__}: {exc}')} "
                               f"(a bpsflow defect; set BPSFLOW_DEBUG=1 for the traceback and "
                               f"please report it)", highlight=False, soft_wrap=True)
             raise typer.Exit(code=1) from None

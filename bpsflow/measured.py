@@ -181,6 +181,8 @@ def read_measured(path: Path | str, config: Config, *, required: Sequence[str] |
     _check_plausible(frame, lines, config, reference, allow_implausible, path, notes)
     frame = _keep_test_windows(frame, config, path, notes)
     frame, aggregation = _aggregate(frame, config, path, notes)
+    # after aggregation: 5-min energy readings are rightly far smaller than hourly sums
+    _check_scale(frame, config, reference, allow_implausible, path, notes)
     frame.index.name = TIMESTAMP_COLUMN
     return MeasuredData(frame=frame, source=path, notes=tuple(notes), aggregation=aggregation)
 
@@ -498,14 +500,29 @@ def _check_plausible(frame: pd.DataFrame, lines: np.ndarray, config: Config,
             continue
         i = int(np.flatnonzero(outside)[0])
         unit = config.outputs[column].unit
-        message = (f"column '{column}' [{unit}], line {lines[i]}: {values[i]:g} is far outside "
-                   f"the plausible range [{low:g}, {high:g}] ({why}; {int(outside.sum())} "
-                   f"value(s) outside){_unit_mistake(values[i], low, high, unit)}")
-        if not allow:
-            raise BpsflowError(f"{message}. If the values are right, set outputs.{column}."
-                               f"plausible: [low, high] in the config, or pass "
-                               f"--allow-implausible", source=path)
-        notes.append(f"{path.name}: {message} (accepted: --allow-implausible)")
+        _implausible(f"column '{column}' [{unit}], line {lines[i]}: {values[i]:g} is far outside "
+                     f"the plausible range [{low:g}, {high:g}] ({why}; {int(outside.sum())} "
+                     f"value(s) outside){_unit_mistake(values[i], low, high, unit)}",
+                     column, allow, path, notes)
+
+
+def _check_scale(frame: pd.DataFrame, config: Config, reference: pd.DataFrame | None,
+                 allow: bool, path: Path, notes: list[str]) -> None:
+    """Error (or a note) for a column far smaller than the simulations, at their resolution."""
+    for column in frame.columns:
+        if column in config.outputs:
+            message = _too_small(column, frame[column].to_numpy(dtype=float),
+                                 config.outputs[column].unit, config, reference)
+            if message:
+                _implausible(message, column, allow, path, notes)
+
+
+def _implausible(message: str, column: str, allow: bool, path: Path, notes: list[str]) -> None:
+    if not allow:
+        raise BpsflowError(f"{message}. If the values are right, set outputs.{column}."
+                           f"plausible: [low, high] in the config, or pass "
+                           f"--allow-implausible", source=path)
+    notes.append(f"{path.name}: {message} (accepted: --allow-implausible)")
 
 
 def plausible_range(config: Config, column: str, reference: pd.DataFrame | None
@@ -528,6 +545,33 @@ def plausible_range(config: Config, column: str, reference: pd.DataFrame | None
             return -ceiling, ceiling, (f"{RELATIVE_CEILING:g} × the largest simulated "
                                        f"magnitude {scale:.4g}")
     return -np.inf, np.inf, "unchecked"
+
+
+def _too_small(column: str, values: np.ndarray, unit: str, config: Config,
+               reference: pd.DataFrame | None) -> str:
+    """A message when a power or energy column is far smaller than every simulation ("" if not).
+
+    Its largest magnitude below 1/:data:`RELATIVE_CEILING` of the ensemble's
+    is a scale mistake (kWh in a J column) rather than a building that used
+    almost nothing: every normalised metric of it would be meaningless. A
+    column of zeros (no heating at all) is left alone.
+    """
+    if reference is None or config.outputs[column].plausible is not None \
+            or aggregation_rule(unit.strip().upper()) is None:
+        return ""
+    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
+    measured_scale = float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 0.0
+    scale = float(np.nanmax(np.abs(simulated))) if np.isfinite(simulated).any() else 0.0
+    if not (measured_scale > 0 and scale > 0 and measured_scale * RELATIVE_CEILING < scale):
+        return ""
+    ratio = scale / measured_scale
+    guesses = [(3.6e6, "kWh in a J column?"), (3600.0, "Wh in a J column?"),
+               (1000.0, "kilo-units (kW, kWh) in a W or Wh column?"),
+               (1e6, "mega-units (MJ, MW) in a J or W column?")]
+    guess = min(guesses, key=lambda g: abs(np.log(ratio / g[0])))
+    hint = f" ({guess[1]})" if abs(np.log(ratio / guess[0])) < np.log(3.0) else ""
+    return (f"column '{column}' [{unit}]: its largest magnitude {measured_scale:.4g} is "
+            f"{ratio:.3g} times smaller than the simulations' ({scale:.4g}){hint}")
 
 
 def _unit_mistake(value: float, low: float, high: float, unit: str) -> str:

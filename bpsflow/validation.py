@@ -139,8 +139,16 @@ def plot_scores(validations: list[TestValidation], path: Path) -> Path:
     fig = Figure(figsize=(4.2 * columns, 3.2 * rows), layout="constrained")
     axes = fig.subplots(rows, columns, squeeze=False)
     for ax, v in zip(axes.ravel(), validations):
-        bins = np.histogram_bin_edges(np.concatenate(
-            [v.scores] + ([v.invalid_scores] if v.invalid_scores is not None else [])), 30)
+        scores = np.concatenate(
+            [v.scores] + ([v.invalid_scores] if v.invalid_scores is not None else []))
+        if not np.isfinite(scores).any():
+            # a metric undefined for these data (an observation mean near zero): the
+            # table's note says why; the panel says there is nothing to draw
+            ax.text(0.5, 0.5, f"{v.row['test']}: no finite {v.row['metric']} scores",
+                    ha="center", va="center", fontsize=8, transform=ax.transAxes)
+            ax.set_axis_off()
+            continue
+        bins = np.histogram_bin_edges(scores[np.isfinite(scores)], 30)
         if v.invalid_scores is not None:
             ax.hist(v.invalid_scores, bins=bins, color="tab:red", alpha=0.5,
                     label="invalid (baseline)")

@@ -405,6 +405,15 @@ def test_power_x1000_against_the_ensemble(case):
                    "20 × the largest simulated magnitude", "×1000")
 
 
+def test_power_in_kilowatts_in_a_watt_column_is_far_too_small(case):
+    """Every value 1000 × too small passes a ceiling; against the ensemble it is a scale error."""
+    scaled = case.hourly.copy()
+    scaled[HEATING] = scaled[HEATING] / 1000
+    _assert_fails_cleanly(case, case.write(scaled, "w_as_kw.csv"), f"column '{HEATING}' [W]",
+                          "times smaller than the simulations'", "kilo-units (kW, kWh)",
+                          "[low, high]", "--allow-implausible")
+
+
 def test_kelvin_in_a_celsius_column(case):
     kelvin = case.hourly.copy()
     kelvin[AIR] = kelvin[AIR] + 273.15
