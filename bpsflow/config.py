@@ -442,6 +442,12 @@ class Config(_Strict):
         _unique([p.name for p in self.model.periods], "model.periods")
         _unique([t.name for t in self.model.tests], "model.tests")
         periods = {p.name: p for p in self.model.periods}
+        for i, period in enumerate(self.model.periods):
+            try:
+                period_dates(period, self.model.year)
+            except (ValueError, BpsflowError) as exc:
+                raise ValueError(f"model.periods[{i}] ({period.name}): "
+                                 f"{getattr(exc, 'message', exc)}") from None
         for i, test in enumerate(self.model.tests):
             if test.period not in periods:
                 raise ValueError(f"model.tests[{i}] ({test.name}).period: unknown period "
@@ -529,14 +535,19 @@ def _parse_month_day(value: str, year: int) -> date:
     try:
         return date(year, int(match[1]), int(match[2]))
     except ValueError:
-        raise ValueError(f"'{value}' is not a valid month-day") from None
+        leap = (" (model.year " + str(year) + " is not a leap year)"
+                if (int(match[1]), int(match[2])) == (2, 29) else "")
+        raise ValueError(f"'{value}' is not a valid month-day{leap}") from None
 
 
 def period_dates(period: Period, year: int) -> tuple[date, date]:
     """First and last day (inclusive) of a run period in the reference year."""
     first, last = _parse_month_day(period.start, year), _parse_month_day(period.end, year)
     if last < first:
-        raise BpsflowError(f"period '{period.name}' ends ({period.end}) before it starts ({period.start})")
+        raise BpsflowError(f"period '{period.name}' ends ({period.end}) before it starts "
+                           f"({period.start}); a period lies within one calendar year "
+                           f"(model.year): split one across the new year into two periods, "
+                           f"e.g. {period.start} to 12-31 and 01-01 to {period.end}")
     return first, last
 
 

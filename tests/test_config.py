@@ -74,6 +74,17 @@ def test_test_outside_its_period_and_unknown_output(tmp_path):
     assert "unknown output 'heating_energy_j'" in _error(tmp_path, raw)
 
 
+def test_a_period_across_the_new_year_or_on_a_missing_leap_day_says_what_to_do(tmp_path):
+    raw = short_raw()
+    raw["model"]["periods"][0].update(start="12-10", end="01-20")
+    message = _error(tmp_path, raw)
+    assert "model.periods[0] (winter)" in message and "split" in message
+    assert "12-10 to 12-31 and 01-01 to 01-20" in message and str(tmp_path) in message
+    raw = short_raw()
+    raw["model"]["periods"][0]["end"] = "02-29"
+    assert "is not a leap year" in _error(tmp_path, raw)
+
+
 def test_sampler_must_match_boundary_sequences(tmp_path):
     raw = short_raw(boundary_sequences=20)
     sampler = next(p for p in raw["parameters"] if p["distribution"]["type"] == "sampler")
