@@ -945,3 +945,27 @@ def test_the_response_to_a_gain_is_read_from_the_model_not_the_output_name():
     assert output_sign(config, "gas_kwh", np.ones(200), outdoor) == 1.0
     heating = SimpleNamespace(outputs={"q": OutputVariable(meter="Heating:EnergyTransfer")})
     assert output_sign(heating, "q") == -1.0
+
+
+def test_an_accepted_size_at_the_top_of_its_range_is_flagged_and_the_gain_says_when():
+    """A fit pressed against its bound stands in for an effect the extension cannot express."""
+    from types import SimpleNamespace
+
+    from bpsflow.config import load_config
+    from bpsflow.diagnosis.fitting import parameter_range
+    from bpsflow.diagnosis.workflow import _bound_notes, where_text
+
+    config = load_config(ROOT / "configs" / "diagnosis.yaml")
+    parameter = next(p for p in config.parameters if np.ptp(parameter_range(p)) > 0)
+    low, high = parameter_range(parameter)
+    entry = {"name": "internal_gain_schedule", "accepted": True, "zone": "STAFF",
+             "schedule": {"day_type": "weekdays", "start_hour": 17, "end_hour": 22},
+             "parameter_names": {"size": parameter.name}, "fitted": {"size": high}}
+    assert where_text(entry) == " in zone STAFF on weekdays 17–22 h"
+    result = SimpleNamespace(final=SimpleNamespace(config=config), extensions=[entry])
+    (note,) = _bound_notes(result)
+    assert "sits at the top of its range" in note and "STAFF" in note
+    entry["fitted"]["size"] = low + 0.5 * (high - low)
+    assert _bound_notes(result) == []
+    entry.update(accepted=False, fitted={"size": high})
+    assert _bound_notes(result) == []

@@ -316,7 +316,8 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
             loss = e.get("loss_difference")
             fitted = e.get("law") or ", ".join(f"{k} = {v:.4g}" for k, v in e["fitted"].items())
             lines.append(
-                f"| {e['round']} | {e.get('rank', '-')} | {_extension_label(e)} | {e['driver']} "
+                f"| {e['round']} | {'-' if e.get('rank') is None else e['rank']} | "
+                f"{_extension_label(e)} | {e['driver']} "
                 f"| {fitted} | "
                 + (f"{cv['cvrmse_before']:.2%} → {cv['cvrmse_after']:.2%}" if cv else "-")
                 + f" | {h['before']['cvrmse']:.2%} → {h['after']['cvrmse']:.2%} | "
@@ -352,6 +353,9 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
 def _extension_label(entry: dict) -> str:
     """``name (zone Z)``, with the facade and its surfaces for a solar aperture."""
     where = [f"zone {entry['zone']}"] if entry.get("zone") else []
+    block = entry.get("schedule")
+    if isinstance(block, dict) and "day_type" in block:
+        where.append(f"{block['day_type']} {block['start_hour']}–{block['end_hour']} h")
     if entry.get("facade"):
         surfaces = ", ".join(entry.get("surfaces") or []) or "compass plane"
         where.append(f"{entry['facade']} facade: {surfaces}")

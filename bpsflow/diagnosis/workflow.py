@@ -851,6 +851,41 @@ def _driver_record(test) -> dict:
             "sign_consistent": bool(test.sign_consistent), "significant": bool(test.significant)}
 
 
+def where_text(entry: dict) -> str:
+    """`` in zone Z on weekdays 17–22 h``: where and when an extension acts ("" if unknown)."""
+    text = f" in zone {entry['zone']}" if entry.get("zone") else ""
+    block = entry.get("schedule")
+    if isinstance(block, dict) and "day_type" in block:
+        text += f" on {block['day_type']} {block['start_hour']}–{block['end_hour']} h"
+    return text
+
+
+def _bound_notes(result: Diagnosis) -> list[str]:
+    """A note per accepted extension size fitted at the top of its range.
+
+    A size pressed against its bound says the extension cannot express the
+    effect as it is: larger than the catalogue allows, or acting elsewhere
+    (another zone, another shape), and its fit stands in for it.
+    """
+    parameters = {p.name: p for p in result.final.config.parameters}
+    notes = []
+    for entry in result.extensions:
+        if not entry.get("accepted"):
+            continue
+        for reported, name in entry.get("parameter_names", {}).items():
+            if name not in parameters or reported not in entry.get("fitted", {}):
+                continue
+            low, high = parameter_range(parameters[name])
+            value = entry["fitted"][reported]
+            if np.isfinite(high) and high > low and value >= high - 0.01 * (high - low):
+                notes.append(f"{entry.get('cause', entry['name'])}{where_text(entry)}: "
+                             f"{reported} = {value:.4g} sits at the top of its range "
+                             f"({high:.4g}); the extension may not express this effect (larger "
+                             f"than allowed, or acting in another zone or shape): treat its size "
+                             f"as a bound, and check diagnosis.zone")
+    return notes
+
+
 def _fitted_text(fitted: dict[str, float]) -> str:
     return ", ".join(f"{k} = {v:.4g}" for k, v in fitted.items())
 
@@ -2062,11 +2097,14 @@ def _finish(context: _Context, result: Diagnosis) -> None:
     elif cause.get("extension"):
         accepted = [e for e in result.extensions if e.get("accepted")]
         cause["summary"] = (f"The residuals follow {cause['driver']}, which the model lacks: "
-                            + ", ".join(f"{e.get('cause', e['name'])} "
+                            + ", ".join(f"{e.get('cause', e['name'])}{where_text(e)} "
                                         f"({e.get('law') or _fitted_text(e['fitted'])})"
                                         for e in accepted)
                             + f" improves held-out CV(RMSE) {before['cvrmse']:.2%} -> "
                             f"{after['cvrmse']:.2%}.")
+        for note in _bound_notes(result):
+            if note not in result.notes:
+                result.notes.append(note)
         rival = next((e["versus_parameter"] for e in accepted if "versus_parameter" in e), None)
         explaining = [r["name"] for r in result.parameter_check if r.get("explains")]
         if rival and explaining:
