@@ -58,9 +58,15 @@ def align(config: Config, results: pd.DataFrame, measured: pd.DataFrame, test: T
         raise BpsflowError(f"measured timestamps repeat (e.g. {list(map(str, dupes))})",
                            source=measured_source)
     if hours[0] < measured.index.min() or hours[-1] > measured.index.max():
+        # data that stop exactly one hour short, on the hour, are hour-beginning stamps
+        shifted = (measured.index.max() == hours[-1] - pd.Timedelta(hours=1)
+                   and measured.index.max().minute == 0)
         raise BpsflowError(
             f"test {test.name} is evaluated over {hours[0]} .. {hours[-1]} (hour-ending) but "
-            f"the measured data cover {measured.index.min()} .. {measured.index.max()}",
+            f"the measured data cover {measured.index.min()} .. {measured.index.max()}"
+            + ("; the stamps look hour-beginning (the last hour stamped 23:00): bpsflow reads "
+               "hour-ending stamps, 01:00 for the mean over 00:00-01:00, so add one hour to "
+               "them" if shifted else ""),
             source=measured_source)
     observed = measured[output].reindex(hours)
     missing = observed.index[observed.isna()]

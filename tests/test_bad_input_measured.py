@@ -518,3 +518,10 @@ def test_slash_dates_are_read_with_one_format_or_refused_as_ambiguous(case):
     day_month = _metrics(case)
     assert_ok(case.validate(case.write(case.hourly, "iso.csv")))
     _assert_same_metrics(_metrics(case), day_month)
+
+
+def test_hour_beginning_stamps_are_named_with_the_shift_to_make(case):
+    shifted = case.hourly.copy()
+    shifted.index = shifted.index - pd.Timedelta(hours=1)
+    _assert_fails_cleanly(case, case.write(shifted, "hour_beginning.csv"),
+                          "look hour-beginning", "add one hour")
