@@ -194,6 +194,10 @@ def indoor_temperature(config: Config, measured: pd.DataFrame,
     return heating
 
 
+#: A candidate whose calibration RMSE is below this share of the current model's, yet whose
+#: linearised out-of-fold error is larger, has its folds refitted by simulation.
+LINEARISED_DOUBT = 0.9
+
 #: Smallest |correlation| of the prediction with the outdoor temperature that tells its sign.
 SIGN_CORRELATION = 0.2
 
@@ -353,7 +357,7 @@ class _Context:
         #: wall time of each batch of fits (s), by label, for the report
         self.timings: dict[str, float] = {}
         #: out-of-fold predictions of a model, by (label, round): shared by its candidates
-        self.oof_cache: dict[tuple[str, int], np.ndarray] = {}
+        self.oof_cache: dict[tuple[str, int, str], np.ndarray] = {}
         self.notes: list[str] = []       # Diagnosis.notes of the dataset under diagnosis
         self.stage = "base"              # the last batch started (named in a failure note)
 
@@ -1800,37 +1804,70 @@ def _cross_validate(context: _Context, union: Config, union_sample: dict, curren
         return {}
     folds = crossval.day_blocks(d.timestamps, ~d.calibration, settings.days_per_fold)
     last = int(folds.max())
-    key = (current.label, round_number)
-    everyone = ([] if key in context.oof_cache else [(current.fitted, current.fit)]) + models
     refit = settings.cv_refit or ("simulated" if get_backend(context.backend).vectorised
                                   else "linearised")
-    predictions = []
-    if refit == "simulated":
-        problems = [Problem(union_sample, fitted, d.y, folds != number, dict(fit.named))
-                    for fitted, fit in everyone for number in range(last)]
-        fits = context.fit(union, f"round{round_number}_folds", problems,
-                           max_iterations=settings.cv_iterations) if problems else []
-        for position, (_, fit) in enumerate(everyone):
-            mine = fits[position * last:(position + 1) * last]
-            per_fold = {number: f.prediction for number, f in enumerate(mine)}
-            per_fold[last] = fit.prediction
-            predictions.append(crossval.out_of_fold(folds, per_fold))
-    else:
-        for fitted, fit in everyone:
-            per_fold = {number: _gauss_newton_refit(d.y, fit, fitted, folds != number)
-                        for number in range(last)}
-            per_fold[last] = fit.prediction
-            predictions.append(crossval.out_of_fold(folds, per_fold))
-    if key not in context.oof_cache:
-        context.oof_cache[key] = predictions.pop(0)
-    base = context.oof_cache[key]
+
+    def out_of_fold(fits: list[tuple[list[Parameter], Fit]], how: str) -> list[np.ndarray]:
+        predictions = []
+        if how == "simulated":
+            problems = [Problem(union_sample, fitted, d.y, folds != number, dict(fit.named))
+                        for fitted, fit in fits for number in range(last)]
+            refitted = context.fit(union, f"round{round_number}_folds", problems,
+                                   max_iterations=settings.cv_iterations) if problems else []
+            for position, (_, fit) in enumerate(fits):
+                mine = refitted[position * last:(position + 1) * last]
+                per_fold = {number: f.prediction for number, f in enumerate(mine)}
+                per_fold[last] = fit.prediction
+                predictions.append(crossval.out_of_fold(folds, per_fold))
+        else:
+            for fitted, fit in fits:
+                per_fold = {number: _gauss_newton_refit(d.y, fit, fitted, folds != number)
+                            for number in range(last)}
+                per_fold[last] = fit.prediction
+                predictions.append(crossval.out_of_fold(folds, per_fold))
+        return predictions
+
+    def with_base(fits: list[tuple[list[Parameter], Fit]], how: str
+                  ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The current model's out-of-fold prediction (cached per round) and each of ``fits``'."""
+        key = (current.label, round_number, how)
+        cached = key in context.oof_cache
+        # one batch: the current model's folds beside the candidates'
+        found = out_of_fold(([] if cached else [(current.fitted, current.fit)]) + fits, how)
+        if not cached:
+            context.oof_cache[key] = found.pop(0)
+        return context.oof_cache[key], found
+
+    base, predictions = with_base(models, refit)
+    bases = [base] * len(models)
+    ways = [refit] * len(models)
+    if refit == "linearised" and settings.cv_refit is None:
+        # A linearised fold refit rests on a finite-difference Jacobian; where a model fits
+        # the calibration hours clearly better yet predicts its folds worse than the current
+        # model, the linearisation, not the model, is the suspect: those models (and the
+        # current one) are refitted per fold by simulation instead
+        cal = d.calibration
+        rmse_current = rmse(d.y[cal], current.fit.prediction[cal])
+        doubtful = [i for i, (_, fit) in enumerate(models)
+                    if rmse(d.y[cal], fit.prediction[cal]) < LINEARISED_DOUBT * rmse_current
+                    and rmse(d.y, predictions[i]) > rmse(d.y, bases[i])]
+        if doubtful:
+            simulated_base, simulated = with_base([models[i] for i in doubtful], "simulated")
+            for i, prediction in zip(doubtful, simulated):
+                predictions[i], bases[i], ways[i] = prediction, simulated_base, "simulated"
+            context.notes.append(
+                f"round {round_number}: {len(doubtful)} candidate(s) fitted the calibration "
+                f"hours clearly better but predicted their folds worse under the linearised "
+                f"refit; their folds (and the current model's) were refitted by simulation")
     mean = float(np.mean(d.y))
     out = {}
     for index, prediction in enumerate(predictions):
+        base = bases[index]
         test = comparison.encompassing_test(d.y - base, d.y - prediction, lags=HELDOUT_LAGS)
         loss_difference = comparison.loss_difference_test(d.y - base, d.y - prediction,
                                                           loss="absolute", lags=HELDOUT_LAGS)
         out[index] = {"folds": last + 1, "days_per_fold": settings.days_per_fold,
+                      "refit": ways[index],
                       "cvrmse_before": float(np.sqrt(np.mean((d.y - base) ** 2)) / abs(mean)),
                       "cvrmse_after": float(np.sqrt(np.mean((d.y - prediction) ** 2))
                                             / abs(mean)),
