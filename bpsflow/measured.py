@@ -538,13 +538,19 @@ def plausible_range(config: Config, column: str, reference: pd.DataFrame | None
         low, high = PHYSICAL_RANGES[unit]
         return low, high, f"physical range for {output.unit}"
     if aggregation_rule(unit) is not None and reference is not None:
-        simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
-        scale = float(np.nanmax(np.abs(simulated))) if simulated.size else 0.0
-        if np.isfinite(scale) and scale > 0:
+        scale = _ensemble_scale(reference, column)
+        if scale > 0:
             ceiling = RELATIVE_CEILING * scale
             return -ceiling, ceiling, (f"{RELATIVE_CEILING:g} × the largest simulated "
                                        f"magnitude {scale:.4g}")
     return -np.inf, np.inf, "unchecked"
+
+
+def _ensemble_scale(reference: pd.DataFrame, column: str) -> float:
+    """The largest finite magnitude of ``column`` over the simulated ensemble (0 if none)."""
+    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
+    finite = simulated[np.isfinite(simulated)]
+    return float(np.max(np.abs(finite))) if finite.size else 0.0
 
 
 def _too_small(column: str, values: np.ndarray, unit: str, config: Config,
@@ -559,9 +565,8 @@ def _too_small(column: str, values: np.ndarray, unit: str, config: Config,
     if reference is None or config.outputs[column].plausible is not None \
             or aggregation_rule(unit.strip().upper()) is None:
         return ""
-    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
     measured_scale = float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 0.0
-    scale = float(np.nanmax(np.abs(simulated))) if np.isfinite(simulated).any() else 0.0
+    scale = _ensemble_scale(reference, column)
     if not (measured_scale > 0 and scale > 0 and measured_scale * RELATIVE_CEILING < scale):
         return ""
     ratio = scale / measured_scale

@@ -101,9 +101,9 @@ def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame,
     # Plain arrays, masks combined per test and output: a few hundred microseconds per
     # instance where DataFrame filtering cost tens of milliseconds.
     stamps = raw["timestamp"].to_numpy()
-    # astype(str): a run that reported nothing gives empty columns of no string type
-    variables = raw["variable"].astype(str).str.upper().to_numpy()
-    keys = raw["key"].astype(str).str.upper().to_numpy()
+    # a run that reported nothing gives empty columns of no string type (no .str)
+    variables, keys = ((raw["variable"].str.upper().to_numpy(), raw["key"].str.upper().to_numpy())
+                       if len(raw) else (np.array([], dtype=object), np.array([], dtype=object)))
     is_meter = raw["is_meter"].to_numpy() == 1
     frequencies = raw["frequency"].to_numpy()
     values = raw["value"].to_numpy(dtype=float)
