@@ -919,9 +919,12 @@ Zone, Plenum, 0, 0, 0, 3, 1, 1, autocalculate, autocalculate, 200;
     meter = _stub_config(None)
     # the plenum has neither equipment nor a thermostat: the west room is the largest
     assert diagnosis_zone(meter, "heating_w", model=model) == "West Room"
-    assert building_level_zone(meter, "heating_w")
-    assert not building_level_zone(_stub_config("East Ideal Loads"), "heating_w")
-    assert not building_level_zone(_stub_config(None, zone="East Room"), "heating_w")
+    assert building_level_zone(meter, "heating_w", model)
+    assert not building_level_zone(_stub_config("East Ideal Loads"), "heating_w", model)
+    assert not building_level_zone(_stub_config(None, zone="East Room"), "heating_w", model)
+    # one zone: nothing was chosen, so the report has nothing to say
+    one = parse_idf_text(TWO_ZONES.replace("Zone, West Room", "Space, West Room"))
+    assert not building_level_zone(meter, "heating_w", one)
     # a zone multiplier counts: ten identical east rooms outweigh one west room
     multiplied = parse_idf_text(TWO_ZONES.replace(
         "Zone, East Room, 0, 5, 0, 0, 1, 1,", "Zone, East Room, 0, 5, 0, 0, 1, 10,") + floors)

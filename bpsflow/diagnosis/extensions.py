@@ -325,14 +325,22 @@ def conditioned_zones(model: IdfModel) -> list[str]:
     return [zone for zone in zones if zone.upper() in named]
 
 
-def building_level_zone(config: Config, output: str) -> bool:
-    """Whether the extensions' zone was chosen for a building-level output, not given or named."""
+def building_level_zone(config: Config, output: str, model: IdfModel | None = None) -> bool:
+    """Whether the extensions' zone was chosen for a building-level output of a multi-zone model.
+
+    True when neither ``diagnosis.zone``, ``diagnosis.extension_zones`` nor the
+    output's key name a zone and the model has more than one: the zone then
+    comes from the floor areas (:func:`diagnosis_zone`), not from the data.
+    """
     from bpsflow.diagnosis.settings import DiagnosisSettings
+    from bpsflow.simulation.idf import model_objects
 
     settings = getattr(config, "diagnosis", None) or DiagnosisSettings()
     variable = config.outputs.get(output)
-    return not settings.zone and not settings.extension_zones \
-        and not getattr(variable, "key", None)
+    if settings.zone or settings.extension_zones or getattr(variable, "key", None):
+        return False
+    model = model if model is not None else model_objects(config.model)
+    return len(model_zones(model)) > 1
 
 
 def zone_of_key(model: IdfModel, key: str | None) -> str | None:

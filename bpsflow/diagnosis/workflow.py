@@ -307,8 +307,9 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
         zone = next(iter(zones.values()))
         context.notes.append(
             f"'{data[0].output}' is a building-level output (no zone key): it cannot tell "
-            f"which zone a cause sits in, so candidate extensions are written for the zone "
-            f"with the most floor area, '{zone}' (diagnosis.zone picks another)")
+            f"which zone a cause sits in, so candidate extensions are written for the "
+            f"conditioned zone with the most floor area, '{zone}' (diagnosis.zone picks "
+            f"another)")
         announce(context.notes[-1])
     announce(f"fitting {len(fitted)} existing parameter(s) to {data[0].output} "
              f"({int(data[0].calibration.sum())} calibration hours, "
