@@ -437,3 +437,41 @@ def test_per_output_noise_is_the_gaussian_with_each_rows_own_error():
     expected += stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf(0.1)
     expected += stats.norm(*priors["log_noise_std"]).logpdf(np.log([0.05, 0.4])).sum()
     assert float(value) == pytest.approx(expected, rel=1e-6)
+
+
+def test_lowrank_likelihood_with_every_observation_inducing_is_the_exact_gaussian():
+    """The low-rank likelihood keeps the emulator's variances (not its covariances) and
+    replaces δ's kernel by its Nyström/FITC form; with the inducing inputs at the
+    observations themselves that form is exact, so the log density equals a hand-built
+    Gaussian with diagonal emulator variance (ARD length-scale, each row's own noise)."""
+    from numpyro.infer.util import log_density
+
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=10)
+    obs_rows = np.arange(10)
+    groups = np.array([0, 1] * 5)
+    rng = np.random.default_rng(4)
+    y = rng.normal(size=10)
+    settings = BayesSettings(noise_per_output=True, likelihood="lowrank", ard=True,
+                             inducing_points=10)
+    data = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1), settings,
+                          obs_outputs=groups)
+    assert data.lowrank
+    point = {"z": np.array([-0.4]), "log_discrepancy_std": np.log(0.3),
+             "log_discrepancy_lengthscale": np.array([-1.2]),
+             "log_noise_std": np.log(np.array([0.05, 0.4]))}
+    model = bayes.make_model(True, data.priors, True, n_noise=2)
+    value, _ = log_density(model, (bayes.model_arrays(data),), {}, point)
+    t = standardise_unit(special.ndtr(point["z"]))
+    mean = emulator.grid.predict_mean(t[None, :])[0, obs_rows]
+    variance = np.diag(emulator.grid.predict_cov(t))[obs_rows]
+    xs = emulator.grid.x[obs_rows]
+    d2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(-1)
+    cov = np.diag(variance + np.array([0.05, 0.4])[groups] ** 2) \
+        + 0.3 ** 2 * np.exp(-0.5 * d2 / np.exp(-1.2) ** 2)
+    expected = stats.multivariate_normal(mean, cov).logpdf(y)
+    priors = data.priors
+    expected += stats.norm(0, 1).logpdf(-0.4)
+    expected += stats.norm(*priors["log_discrepancy_std"]).logpdf(np.log(0.3))
+    expected += stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf(-1.2)
+    expected += stats.norm(*priors["log_noise_std"]).logpdf(np.log([0.05, 0.4])).sum()
+    assert float(value) == pytest.approx(expected, rel=1e-4)
