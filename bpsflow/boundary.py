@@ -150,9 +150,15 @@ def read_sequences(path: Path) -> BoundarySequences:
 
 @lru_cache(maxsize=2)
 def _read_sequences(path: Path, inode: int, mtime_ns: int, size: int) -> BoundarySequences:
-    with np.load(path) as data:
-        return BoundarySequences(surfaces=tuple(str(s) for s in data["surfaces"]),
-                                 hours=data["hours"], values=data["values"])
+    try:
+        with np.load(path) as data:
+            return BoundarySequences(surfaces=tuple(str(s) for s in data["surfaces"]),
+                                     hours=data["hours"], values=data["values"])
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        # a damaged file would otherwise fail every instance with numpy's own words
+        raise BpsflowError(f"{path}: not a readable boundary-sequence file ({exc}); it was "
+                           "damaged after bpsflow wrote it: delete it and run 'bpsflow sample' "
+                           "with --force to draw the design again") from None
 
 
 @lru_cache(maxsize=4)

@@ -158,7 +158,9 @@ class Period(_Strict):
     @field_validator("start", "end")
     @classmethod
     def _month_day(cls, value: str) -> str:
-        _parse_month_day(value, 2001)
+        # only the form here (2000 is a leap year); the day is checked against model.year
+        # once the whole config is read
+        _parse_month_day(value, 2000)
         return value
 
 
@@ -193,7 +195,9 @@ class Test(_Strict):
     @field_validator("start")
     @classmethod
     def _month_day(cls, value: str) -> str:
-        _parse_month_day(value, 2001)
+        # only the form here (2000 is a leap year); the day is checked against model.year
+        # once the whole config is read
+        _parse_month_day(value, 2000)
         return value
 
     @model_validator(mode="after")
@@ -203,6 +207,12 @@ class Test(_Strict):
                              "setpoint_c or setback_c")
         if self.mode in ("heating", "cooling") and self.setpoint_c is None:
             raise ValueError(f"a {self.mode} test needs setpoint_c (°C)")
+        if self.mode == "free_floating" and (self.setpoint_c is not None
+                                             or self.setback_c is not None):
+            raise ValueError("a free_floating test has every thermostat off: it takes no "
+                             "setpoint_c or setback_c (use mode heating or cooling)")
+        if self.setback_c is not None and self.mode not in ("heating", "cooling"):
+            raise ValueError("setback_c needs a heating or cooling test")
         if self.warmup_days >= self.days:
             raise ValueError(f"warmup_days ({self.warmup_days}) must be fewer than days ({self.days})")
         return self

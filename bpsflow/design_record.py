@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bpsflow.errors import BpsflowError
-from bpsflow.files import jsonable, write_json
+from bpsflow.files import jsonable, read_parquet, write_json
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -146,12 +146,10 @@ def design_changes(config: Config, run_dir: Path) -> list[str] | None:
 
 
 def _same_as_redrawn(config: Config, samples_path: Path) -> bool:
-    import pandas as pd
-
     from bpsflow.sampling import sample
 
     try:
-        stored = pd.read_parquet(samples_path).set_index("instance")
+        stored = read_parquet(samples_path).set_index("instance")
         drawn = sample(config).values
     except Exception:  # unreadable samples or a design that no longer draws: not the same
         return False

@@ -35,7 +35,7 @@ from typing import IO, Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["inside", "jsonable", "read_user_text", "save_figure", "write_bytes_atomic",
+__all__ = ["inside", "jsonable", "read_parquet", "read_user_text", "save_figure", "write_bytes_atomic",
            "write_csv", "write_json", "write_npz", "write_parquet", "write_text_atomic"]
 
 
@@ -70,6 +70,26 @@ def read_user_text(path: str | os.PathLike, what: str) -> str:
     except OSError as exc:
         raise BpsflowError(f"cannot be read ({exc.strerror}); expected {what}",
                            source=path) from None
+
+
+def read_parquet(path: str | os.PathLike, **kwargs: Any) -> pd.DataFrame:
+    """A parquet file bpsflow wrote, or an error naming it when it cannot be read.
+
+    A truncated or overwritten result file (a disk that filled up, an editor, a
+    copy cut short) is bad input like any other: the message names the file and
+    what to do, and nothing else in the folder is touched.
+    """
+    from bpsflow.errors import BpsflowError
+
+    try:
+        return pd.read_parquet(path, **kwargs)
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError) as exc:   # pyarrow's ArrowInvalid is a ValueError
+        raise BpsflowError(f"{path}: not a readable parquet file ({type(exc).__name__}: "
+                           f"{str(exc).splitlines()[0] if str(exc) else 'unreadable'}); it was "
+                           "damaged after bpsflow wrote it: restore it, or delete it and run "
+                           "the command that writes it again") from None
 
 
 def jsonable(value: Any) -> Any:

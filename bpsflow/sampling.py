@@ -18,7 +18,7 @@ import pandas as pd
 
 from bpsflow.config import Config, Parameter
 from bpsflow.errors import BpsflowError
-from bpsflow.files import write_parquet
+from bpsflow.files import read_parquet, write_parquet
 
 SAMPLES_FILE = "samples.parquet"
 UNIT_DESIGN_FILE = "design_unit.parquet"
@@ -118,4 +118,4 @@ def read_samples(run_dir: Path) -> pd.DataFrame:
     if not path.is_file():
         raise BpsflowError(f"no samples in {run_dir}: run 'bpsflow sample CONFIG' first "
                            f"(expected {path})")
-    return pd.read_parquet(path).set_index("instance")
+    return read_parquet(path).set_index("instance")

@@ -62,7 +62,7 @@ from bpsflow.alignment import align, evaluation_hours
 from bpsflow.config import Config, Parameter
 from bpsflow.distributions import Constant
 from bpsflow.errors import BpsflowError
-from bpsflow.files import inside, jsonable, write_csv, write_json, write_text_atomic
+from bpsflow.files import inside, jsonable, read_parquet, write_csv, write_json, write_text_atomic
 from bpsflow.sampling import UNIT_DESIGN_FILE, Design, morris_unit, transform
 
 MORRIS_DIR = "morris"
@@ -236,7 +236,7 @@ def read_unit_design(run_dir: Path) -> pd.DataFrame:
     path = run_dir / UNIT_DESIGN_FILE
     if not path.is_file():
         raise BpsflowError(f"no Morris design in {run_dir} (expected {path})")
-    return pd.read_parquet(path).set_index("instance")
+    return read_parquet(path).set_index("instance")
 
 
 # Responses -----------------------------------------------------------------

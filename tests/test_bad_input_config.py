@@ -92,3 +92,37 @@ def test_a_truth_outside_its_range_is_refused_before_anything_is_written(tmp_pat
     assert_clean_error(invoke("synth", config, "--truth", truth, "--out", tmp_path / "out"),
                        needle)
     assert not (tmp_path / "out" / "measured.csv").exists()
+
+
+def test_a_weather_error_beyond_the_epw_range_is_refused_by_check(tmp_path):
+    """A dry-bulb sensor error of +80 °C (a unit slip) would run: EnergyPlus only warns."""
+    raw = _surrogate_raw()
+    entry = next(p for p in raw["parameters"]
+                 if any(t.get("weather") == "dry_bulb_temperature" for t in p["targets"]))
+    entry["distribution"] = {"type": "uniform", "lower": 79.0, "upper": 81.0}
+    entry["mode"] = "additive"
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       f"parameters ({entry['name']})", "dry_bulb_temperature", "-70..70 °C")
+
+
+def test_a_free_floating_test_with_a_setpoint_is_refused(tmp_path):
+    raw = _surrogate_raw()
+    raw["model"]["tests"][1]["setpoint_c"] = 21.0
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       "model.tests[1] (H-FF)", "free_floating", "no setpoint_c")
+
+
+def test_february_29_is_a_day_of_a_leap_model_year(tmp_path):
+    from bpsflow.config import load_config
+
+    raw = _surrogate_raw()
+    raw["model"]["year"] = 2024
+    raw["model"]["periods"] = [{"name": "winter", "start": "02-27", "end": "03-03"}]
+    for test in raw["model"]["tests"]:
+        test["start"] = "02-29"
+        test["days"] = 2
+    config = load_config(write_config(tmp_path, raw))
+    assert config.model.year == 2024
+    raw["model"]["year"] = 2025
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)), "02-29",
+                       "2025 is not a leap year")

@@ -554,3 +554,16 @@ def test_sigkill_leaves_no_orphan_and_resumes_to_the_same_results(tmp_path):
     reference = _bpsflow("run", alone, "--jobs", "2", "--no-progress", cwd=tmp_path)
     assert reference.wait(timeout=900) == 0
     pd.testing.assert_frame_equal(sorted_results(run), sorted_results(tmp_path / "alone" / "run"))
+
+
+def test_a_damaged_result_file_is_named_and_nothing_else_changes(tmp_path):
+    """A samples.parquet overwritten after bpsflow wrote it is bad input, not a defect:
+    the message names the file and says what to do; the other files stay as they were."""
+    config = write_config(tmp_path, surrogate_raw())
+    assert_ok(invoke("sample", config))
+    run_dir = tmp_path / "run"
+    (run_dir / "samples.parquet").write_text("garbage\n")
+    before = snapshot(run_dir)
+    assert_clean_error(invoke("run", config, "--no-progress"), "samples.parquet",
+                       "not a readable parquet file")
+    assert_unchanged(before, run_dir)

@@ -180,3 +180,40 @@ def test_decide_command_reports_bad_input_without_traceback(tmp_path):
     assert result.exit_code == 2
     assert "unknown outcome 'comfort'" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "run" / "decision").exists()
+
+
+def test_outcome_hours_that_count_nothing_are_refused_before_any_run(tmp_path, hydronic):
+    """An empty or reversed hour range, or weekend hours in a week without a weekend day,
+    is refused when the file is read (it once failed after the simulations)."""
+    reversed_hours = _bad(tmp_path, lambda t: t.replace("end_hour: 19", "end_hour: 5"), hydronic)
+    assert "hours" in reversed_hours and "start_hour" in reversed_hours
+    weekends = _bad(tmp_path, lambda t: t.replace("days: weekdays", "days: weekends")
+                    .replace("days: 7", "days: 5"), hydronic)
+    assert "count no hour of the week" in weekends
+
+
+def test_an_edit_clashing_with_a_parameter_names_that_parameter_and_object(tmp_path, hydronic):
+    """The clash test compares model fields, not object types: an edit of one object is
+    refused only when a parameter sets that very object's field, and the refusal names it."""
+    from bpsflow.decision.workflow import intervention_config
+
+    path = CONFIGS / "hydronic_intervention.yaml"
+    intervention = load_intervention(path, hydronic)
+    edit = intervention.change.edits[0]
+    clashing = hydronic.model_copy(deep=True)
+    clashing.parameters[0] = clashing.parameters[0].model_copy(
+        update={"targets": [edit.target]})
+    with pytest.raises(BpsflowError) as info:
+        intervention_config(clashing, intervention, path)
+    assert clashing.parameters[0].name in str(info.value)
+    assert f"'{edit.target.name}'" in str(info.value) or "*" in edit.target.name
+    intervention_config(hydronic, intervention, path)     # the shipped pair does not clash
+
+
+def test_an_edit_outside_the_idd_range_names_the_edit(tmp_path, hydronic):
+    message = _bad(tmp_path, lambda t: t.replace(
+        "{object: 'SetpointManager:OutdoorAirReset', name: '*', field: Setpoint at Outdoor Low "
+        "Temperature}\n    add: -5\n    minimum: 25",
+        "{object: Material, name: 'Brick Outer Leaf', field: Thickness}\n    set: -1", 1),
+        hydronic)
+    assert "change.edits[0]" in message and "EnergyPlus refuses" in message

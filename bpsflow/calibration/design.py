@@ -37,7 +37,7 @@ from bpsflow.calibration.settings import DEFAULT_VARIABLE_INPUTS, CalibrationSet
 from bpsflow.config import Config, Parameter, Test, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
-from bpsflow.files import write_parquet
+from bpsflow.files import read_parquet, write_parquet
 from bpsflow.sampling import latin_hypercube_unit
 from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 
@@ -151,7 +151,7 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
     run_dir = Path(run_dir).resolve()
     previous = run_dir / SAMPLES_FILE
     if run_dir.exists() and (fresh or not previous.is_file() or not _same_samples(
-            pd.read_parquet(previous).set_index("instance"), samples)):
+            read_parquet(previous).set_index("instance"), samples)):
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     write_parquet(samples.reset_index(), previous, index=False)

@@ -95,6 +95,14 @@ class Hours(_Strict):
     start_hour: int = Field(default=0, ge=0, le=23)
     end_hour: int = Field(default=24, ge=1, le=24)
 
+    @model_validator(mode="after")
+    def _range(self) -> Hours:
+        if self.start_hour >= self.end_hour:
+            raise ValueError(f"start_hour ({self.start_hour}) must be before end_hour "
+                             f"({self.end_hour}): the range is [start_hour, end_hour) within "
+                             "one day (for hours across midnight use two outcomes)")
+        return self
+
 
 class Setpoint(_Strict):
     """The comfort setpoint: a fixed ``value_c``, or the value a calibrated ``parameter`` gives its field."""
@@ -231,7 +239,26 @@ def load_intervention(path: Path, config: Config) -> Intervention:
     if not covered:
         raise BpsflowError(f"week: {week_start:%m-%d}..{week_end:%m-%d} is not inside the "
                            f"evaluated days of any test of the config", source=path)
+    _every_outcome_counts_hours(intervention, week_start, week_end, path)
     return intervention
+
+
+def _every_outcome_counts_hours(intervention: Intervention, week_start, week_end,
+                                path: Path) -> None:
+    """Refuse, before any simulation, an outcome whose hours miss every hour of the week."""
+    import pandas as pd
+
+    from bpsflow.decision.outcomes import counted_hours
+
+    hour_ends = pd.date_range(pd.Timestamp(week_start) + pd.Timedelta(hours=1),
+                              pd.Timestamp(week_end) + pd.Timedelta(days=1), freq="h")
+    for i, outcome in enumerate(intervention.outcomes):
+        if not counted_hours(hour_ends, outcome.hours).any():
+            hours = outcome.hours
+            raise BpsflowError(
+                f"outcomes[{i}] ({outcome.name}).hours: {hours.days} days "
+                f"{hours.start_hour}-{hours.end_hour} h count no hour of the week "
+                f"{week_start:%m-%d}..{week_end:%m-%d}", source=path)
 
 
 def week_dates(intervention: Intervention, config: Config, source: Path | None = None):

@@ -42,6 +42,7 @@ from bpsflow.decision.risk import (
     underperformance_probability,
 )
 from bpsflow.errors import BpsflowError
+from bpsflow.files import read_parquet
 
 DECISION_DIR = "decision"
 DECISION_FILE = "decision.json"
@@ -87,7 +88,7 @@ def read_calibration(folder: Path, config: Config) -> Calibrated:
         raise BpsflowError(f"--calibration: {folder} calibrated parameter(s) "
                            f"{', '.join(unknown)} that {config.source} does not have: it was "
                            f"calibrated with another config")
-    draws = pd.read_parquet(posterior_path)
+    draws = read_parquet(posterior_path)
     missing = [n for n in names if n not in draws.columns]
     if missing:
         raise BpsflowError(f"{posterior_path}: no column for calibrated parameter(s) "
@@ -104,8 +105,7 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
     """
     from bpsflow.config import with_overlay
     from bpsflow.distributions import Constant
-    from bpsflow.simulation.target_bounds import targeted_fields
-    from bpsflow.simulation.targets import targets_field
+    from bpsflow.simulation.target_bounds import check_value, targeted_fields
 
     changed = with_overlay(config, intervention.change.overlay, source,
                            where="change.overlay") if intervention.change.overlay else \
@@ -123,12 +123,12 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
         if not fields:
             raise BpsflowError(f"change.edits[{i}].target: no {edit.target.object} named "
                                f"'{edit.target.name}' in the model", source=source)
-        clash = [p.name for p in changed.parameters for t in p.targets
-                 if isinstance(t, IdfTarget)
-                 and targets_field(t, edit.target.object, edit.target.field)]
+        edited = {_field_key(found) for found in fields}
+        clash = [(p.name, found.obj.where) for found in targeted_fields(changed)
+                 if _field_key(found) in edited for p in found.parameters]
         if clash:
-            raise BpsflowError(f"change.edits[{i}]: parameter {clash[0]} already sets "
-                               f"{edit.target.object} {edit.target.field}; change it "
+            raise BpsflowError(f"change.edits[{i}]: parameter {clash[0][0]} already sets "
+                               f"{clash[0][1]} {edit.target.field}; change it "
                                f"through change.overlay instead", source=source)
         for found in fields:
             if found.nominal is None:
@@ -141,6 +141,12 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                 value = max(value, edit.minimum)
             if edit.maximum is not None:
                 value = min(value, edit.maximum)
+            problem = check_value(found.limits, value)
+            if problem:
+                raise BpsflowError(f"change.edits[{i}]: sets {found.obj.where} "
+                                   f"{edit.target.field} to {value:g}, which EnergyPlus "
+                                   f"refuses: the IDD requires {found.limits.describe()} "
+                                   f"({problem})", source=source)
             name = f"intervention_edit_{i}_{len(added)}"
             changed.parameters.append(Parameter(
                 name=name, mode="absolute", group="intervention",
@@ -150,6 +156,11 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                 description=f"{found.obj.where}: {edit.target.field} {found.nominal:g} -> {value:g}"))
             added[name] = float(value)
     return changed, added
+
+
+def _field_key(found) -> tuple[str, str, int]:
+    """One model field, whatever target pattern reached it: object type, name, position."""
+    return (found.obj.type.lower(), found.obj.name.lower(), found.position)
 
 
 def _draw_samples(config: Config, calibrated: Calibrated, count: int) -> pd.DataFrame:

@@ -30,13 +30,14 @@ def check_model_inputs(config: Config) -> None:
         parameter, object and field) of the first problem.
     """
     from bpsflow.boundary import read_boundary_file
-    from bpsflow.simulation.target_bounds import check_distribution_support
+    from bpsflow.simulation.target_bounds import check_distribution_support, check_weather_support
     from bpsflow.weather import read_epw
 
     try:
-        read_epw(config.model.weather)
+        epw = read_epw(config.model.weather)
     except BpsflowError as exc:
         raise BpsflowError(f"model.weather: {exc.message}", source=exc.source) from None
+    check_weather_support(config, epw.columns)
     boundary = config.model.boundary
     if boundary is not None:
         columns = tuple(surface.column for surface in boundary.surfaces.values())

@@ -32,7 +32,7 @@ from pathlib import Path
 import pandas as pd
 
 from bpsflow.errors import BpsflowError
-from bpsflow.files import write_parquet
+from bpsflow.files import read_parquet, write_parquet
 
 try:  # POSIX: a lock the kernel releases when its process dies
     import fcntl as _fcntl
@@ -80,7 +80,7 @@ def read_instance_outputs(run_dir: Path, instance: int | str) -> pd.DataFrame | 
     if not path.is_file():
         return None
     try:
-        return pd.read_parquet(path)
+        return read_parquet(path)
     except Exception:  # a truncated or foreign file: the instance is unfinished
         return None
 
@@ -115,7 +115,7 @@ def read_manifest(run_dir: Path) -> pd.DataFrame:
     path = Path(run_dir) / MANIFEST_FILE
     if path.is_file():
         try:
-            return pd.read_parquet(path)
+            return read_parquet(path)
         except Exception:  # a partial manifest is rebuilt from the instances' files
             pass
     return pd.DataFrame(columns=MANIFEST_COLUMNS)
@@ -165,7 +165,7 @@ def read_results(run_dir: Path) -> pd.DataFrame:
         raise BpsflowError(f"no results in {run_dir}: run 'bpsflow run CONFIG' first "
                            f"(expected {path})")
     try:
-        return pd.read_parquet(path)
+        return read_parquet(path)
     except Exception as exc:
         raise BpsflowError(f"cannot read {path} ({type(exc).__name__}); run 'bpsflow run "
                            f"CONFIG' again to rebuild it from the finished instances") from None

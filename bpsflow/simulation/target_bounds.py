@@ -45,7 +45,7 @@ if TYPE_CHECKING:
     from bpsflow.config import Config, Parameter
 
 __all__ = ["TargetedField", "targeted_fields", "check_target_fields",
-           "check_distribution_support", "check_sample_values"]
+           "check_distribution_support", "check_sample_values", "check_weather_support"]
 
 
 @dataclass
@@ -183,6 +183,59 @@ def check_distribution_support(config: Config) -> None:
                     f"({problem}). Narrow the distribution (lower/upper) or change the mode",
                     source=config.source)
     _check_sums(config, entries, lambda entry: ranges.get((id(entry.obj), entry.position)))
+
+
+def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> None:
+    """Refuse weather perturbations that take a quantity outside the EPW's valid range.
+
+    ``columns`` are the weather file's own values (:attr:`bpsflow.weather.EpwFile.columns`).
+    The same ranges refuse a weather file with such values (:data:`bpsflow.weather.EPW_RANGES`):
+    a dry-bulb bias of +80 °C is a unit or typing mistake, and EnergyPlus only warns and
+    runs on. Irradiance and wind are clipped at zero where a perturbation takes them below
+    (a sensor offset at night), so only their upper bound is checked here; wind
+    direction is taken modulo 360.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the parameter(s), the weather quantity, the range the design reaches and
+        the valid range.
+    """
+    from bpsflow.config import WeatherTarget
+    from bpsflow.weather import EPW_RANGES
+
+    on_field: dict[str, list[Parameter]] = {}
+    for parameter in config.parameters:
+        for target in parameter.targets:
+            if isinstance(target, WeatherTarget) and parameter not in on_field.get(
+                    target.weather, []):
+                on_field.setdefault(target.weather, []).append(parameter)
+    clipped_at_zero = {"wind_speed", "wind_direction", "global_horizontal_radiation",
+                       "diffuse_horizontal_radiation", "direct_normal_radiation"}
+    for quantity, parameters in on_field.items():
+        if quantity not in EPW_RANGES or quantity not in columns:
+            continue
+        valid_low, valid_high, _, unit = EPW_RANGES[quantity]
+        values = columns[quantity][np.isfinite(columns[quantity])]
+        if values.size == 0:
+            continue
+        low, high = float(values.min()), float(values.max())
+        for parameter in parameters:
+            a, b = _reach(parameter)
+            low, high = _combine(parameter.mode, low, high, a, b)
+        below = low < valid_low and quantity not in clipped_at_zero
+        # wind direction is taken modulo 360
+        if below or (high > valid_high and quantity != "wind_direction"):
+            names = ", ".join(p.name for p in parameters)
+            how = " then ".join(f"{p.name} ({p.mode}, {p.distribution.type})"
+                                for p in parameters)
+            raise BpsflowError(
+                f"parameters ({names}): the design can take the weather's {quantity} to "
+                f"{low if below else high:.6g} {unit} ({how} on the file's "
+                f"{values.min():.6g}..{values.max():.6g} {unit} reaches {low:.6g}..{high:.6g}), "
+                f"outside the valid {valid_low:g}..{valid_high:g} {unit} of an EPW file. "
+                "Check the distribution's unit and bounds (a sensor error is a few units, "
+                "in the quantity's own unit)", source=config.source)
 
 
 def _spectral_average(obj: IdfObject) -> bool:
