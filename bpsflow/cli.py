@@ -415,7 +415,7 @@ def validate(config: Path = ConfigArg,
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
     from bpsflow.design_record import require_same_design
     from bpsflow.plots import plot_bands
-    from bpsflow.simulation.rundir import read_results
+    from bpsflow.simulation.rundir import ensemble_gap_note, read_results
     from bpsflow.validation import note_measured, write_outputs
     from bpsflow.validation import validate as run_validation
 
@@ -425,6 +425,9 @@ def validate(config: Path = ConfigArg,
     # Everything is read and checked before anything is written: a bad file leaves the
     # previous validation.csv/.json as they were.
     results = read_results(rd)
+    gap = ensemble_gap_note(rd, results)
+    if gap:
+        console.print(f"[yellow]{escape(gap)}[/yellow]", highlight=False)
     invalid_results = read_results(invalid.resolve()) if invalid else None
     data = _read_measured(measured, cfg, required=_test_outputs(cfg), reference=results,
                           allow_implausible=allow_implausible)

@@ -725,9 +725,20 @@ def _read_raw(path: Path, seen: tuple[Path, ...]) -> dict:
     parent = raw.pop("extends", None)
     if parent is None:
         return raw
-    parent_path = (path.resolve().parent / str(parent)).resolve()
+    if not isinstance(parent, str) or not parent.strip():
+        raise BpsflowError(f"extends: expected the path of one base config (a string), got "
+                           f"{parent!r}", source=path)
+    if raw.get("parameters") == []:
+        raise BpsflowError("parameters: an empty list in a config that extends another removes "
+                           "nothing (parameters merge by name); to leave a base parameter out of "
+                           "the design, give it by name with distribution {type: constant}",
+                           source=path)
+    parent_path = (path.resolve().parent / parent).resolve()
     if parent_path in seen or parent_path == path.resolve():
         raise BpsflowError(f"extends: '{parent}' extends itself (a cycle)", source=path)
+    if parent_path.is_dir():
+        raise BpsflowError(f"extends: {parent_path} is a folder, expected a config file (YAML)",
+                           source=path)
     if not parent_path.is_file():
         raise BpsflowError(f"extends: base config not found: {parent_path}", source=path)
     base = _absolute_paths(_read_raw(parent_path, seen + (path.resolve(),)), parent_path.parent)

@@ -126,3 +126,28 @@ def test_february_29_is_a_day_of_a_leap_model_year(tmp_path):
     raw["model"]["year"] = 2025
     assert_clean_error(invoke("check", write_config(tmp_path, raw)), "02-29",
                        "2025 is not a leap year")
+
+
+@pytest.mark.parametrize("child, needle", [
+    ({"extends": ["base.yaml"]}, "expected the path of one base config"),
+    ({"extends": "."}, "is a folder"),
+    ({"extends": "base.yaml", "parameters": []}, "removes nothing"),
+])
+def test_extends_mistakes_are_named(tmp_path, child, needle):
+    write_config(tmp_path, _surrogate_raw(), name="base.yaml")
+    path = tmp_path / "child.yaml"
+    path.write_text(yaml.safe_dump(child))
+    assert_clean_error(invoke("check", path), str(path), needle)
+
+
+def test_an_absolute_parameter_that_replaces_another_on_the_same_field_is_refused(tmp_path):
+    """Two parameters on one field: a later absolute one makes the first do nothing (its
+    Morris mu* came out 0), so check refuses the pair, naming both."""
+    raw = _surrogate_raw()
+    first = next(p for p in raw["parameters"]
+                 if p["mode"] == "relative" and "object" in p["targets"][0])
+    raw["parameters"].append({"name": "replacing_value", "mode": "absolute",
+                              "distribution": {"type": "uniform", "lower": 0.02, "upper": 0.04},
+                              "targets": [dict(first["targets"][0])]})
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       first["name"], "replacing_value (absolute)", "no effect")

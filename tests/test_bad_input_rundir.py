@@ -567,3 +567,21 @@ def test_a_damaged_result_file_is_named_and_nothing_else_changes(tmp_path):
     assert_clean_error(invoke("run", config, "--no-progress"), "samples.parquet",
                        "not a readable parquet file")
     assert_unchanged(before, run_dir)
+
+
+def test_scores_over_a_partial_ensemble_come_with_a_note(tmp_path):
+    """A failed instance never stops the others, but validate must say the ensemble is
+    smaller than designed (it once scored 5 of 6 without a word)."""
+    records = {i: rundir.InstanceRecord(instance=i, status="ok" if i != 3 else "failed",
+                                        seconds=1.0) for i in range(6)}
+    rundir.write_manifest(tmp_path, records)
+    results = pd.DataFrame({"instance": [0, 1, 2, 4, 5], "test": "t", "output": "o",
+                            "timestamp": pd.Timestamp("2025-01-01"), "value": 1.0})
+    note = rundir.ensemble_gap_note(tmp_path, results)
+    assert note is not None and "5 of 6" in note and "instance(s) 3" in note
+    assert rundir.ensemble_gap_note(tmp_path, pd.concat(
+        [results, results.assign(instance=3)])) is not None      # 3 is still a failure
+    records[3] = rundir.InstanceRecord(instance=3, status="ok", seconds=1.0)
+    rundir.write_manifest(tmp_path, records)
+    assert rundir.ensemble_gap_note(tmp_path, pd.concat(
+        [results, results.assign(instance=3)])) is None

@@ -118,6 +118,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
         from bpsflow.calibration.bayes import configure_jax
 
         configure_jax(settings.bayes.chains)
+    if truth_path:
+        # a wrong --truth file is refused before the design runs, not after
+        workflow.read_truth(truth_path, config.parameters)
     out = Path(out) if out else config.run_dir.resolve() / DEFAULT_OUT
     chosen_backend = choose_backend(config, console.print).name
     design = workflow.prepare_design(config, settings, out / "design", chosen_backend, jobs,

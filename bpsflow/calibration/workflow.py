@@ -366,4 +366,13 @@ def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
     values = raw.get("values") if isinstance(raw, dict) else None
     if not isinstance(values, dict):
         raise BpsflowError("expected a mapping 'values: {parameter: value}'", source=path)
-    return {p.name: float(values[p.name]) for p in parameters if p.name in values}
+    truth = {}
+    for parameter in parameters:
+        if parameter.name not in values:
+            continue
+        try:
+            truth[parameter.name] = float(values[parameter.name])
+        except (TypeError, ValueError):
+            raise BpsflowError(f"values.{parameter.name}: expected a number, got "
+                               f"{values[parameter.name]!r}", source=path) from None
+    return truth

@@ -198,6 +198,7 @@ def derive_drivers(weather: Path, timestamps: pd.DatetimeIndex, measured: pd.Dat
     out["day_of_week"] = hour_starts.day_of_week.to_numpy().astype(float)
     drivers = pd.DataFrame(out, index=timestamps)
 
+    left_out: list[str] = []
     if measured is not None:
         extra = [c for c in measured.select_dtypes("number").columns if c not in set(exclude)]
         if extra:
@@ -209,9 +210,16 @@ def derive_drivers(weather: Path, timestamps: pd.DatetimeIndex, measured: pd.Dat
             # A measured column named like a derived driver (an on-site outdoor
             # temperature) is kept beside the weather file's, not instead of it.
             columns = measured.loc[timestamps, extra].astype(float)
+            # a column with no data (or one value) over the analysed hours can explain
+            # nothing: it is left out, and named in drivers.attrs for the report's notes
+            empty = [c for c in extra if columns[c].dropna().nunique() < 2]
+            columns = columns.drop(columns=empty)
+            left_out = empty
             drivers = drivers.join(columns.rename(
                 columns=lambda c: f"measured_{c}" if c in drivers.columns else c))
-    return drivers.drop(columns=[c for c in exclude if c in DRIVER_NAMES])
+    drivers = drivers.drop(columns=[c for c in exclude if c in DRIVER_NAMES])
+    drivers.attrs["left_out"] = left_out
+    return drivers
 
 
 def driver_group(name: str) -> str:

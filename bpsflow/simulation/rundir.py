@@ -357,3 +357,28 @@ def _alive(host: str, pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def ensemble_gap_note(run_dir: Path, results: pd.DataFrame) -> str | None:
+    """A note when the results hold fewer instances than the design drew, else ``None``.
+
+    Scores over a partial ensemble are still computed (a crashed simulation never stops
+    the others), but a user must see that the ensemble is smaller than designed.
+    """
+    records = manifest_records(run_dir)
+    if not records:
+        return None
+    present = set(pd.unique(results["instance"])) if len(results) else set()
+    failed = sorted(i for i, r in records.items() if r.status != "ok")
+    missing = sorted(set(records) - present - set(failed))
+    if not failed and not missing:
+        return None
+    parts = []
+    if failed:
+        parts.append(f"{len(failed)} failed (instance(s) {', '.join(map(str, failed[:5]))}"
+                     f"{', ...' if len(failed) > 5 else ''})")
+    if missing:
+        parts.append(f"{len(missing)} without results")
+    return (f"the ensemble has {len(present)} of {len(records)} instances: "
+            f"{' and '.join(parts)}; scores are over the {len(present)} that ran "
+            f"('bpsflow run --retry-failed' runs the failed ones again)")

@@ -169,6 +169,15 @@ def check_distribution_support(config: Config) -> None:
     entries = targeted_fields(config)
     ranges: dict[tuple[int, int], tuple[float, float]] = {}
     for entry in entries:
+        last_absolute = max((k for k, p in enumerate(entry.parameters) if p.mode == "absolute"),
+                            default=None)
+        if last_absolute:
+            overridden = [p.name for p in entry.parameters[:last_absolute]]
+            raise BpsflowError(
+                f"parameters ({entry.names}): {entry.parameters[last_absolute].name} (absolute) "
+                f"sets {entry.where} after {', '.join(overridden)}, whose value it replaces: "
+                f"{overridden[0]} would have no effect on the model. Target the field with one "
+                "of them, or make the later one relative or additive", source=config.source)
         reach = _interval(entry)
         if reach is None:
             continue
