@@ -122,7 +122,7 @@ def _write_resolved(cfg) -> None:
                       yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
 
 
-RunDirOption = typer.Option(None, "--run-dir", help="Override execution.run_dir.")
+RunDirOption = typer.Option(None, "--run-dir", file_okay=False, help="Override execution.run_dir.")
 BackendOption = typer.Option(None, help="Override model.backend.")
 JobsOption = typer.Option(None, "--jobs", "-j", help="Parallel processes for the simulations.")
 EngineOption = typer.Option(None, "--engine", help="Override execution.engine: local (processes "
@@ -280,7 +280,7 @@ def _set_backend(cfg, backend: str | None) -> None:
 def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
               instance: list[int] = typer.Option([0], "--instance", "-i",
                                                  help="Instance(s) to write."),
-              out: Path | None = typer.Option(None, help="Where to write (default RUN_DIR/inspect)."),
+              out: Path | None = typer.Option(None, file_okay=False, help="Where to write (default RUN_DIR/inspect)."),
               no_progress: bool = NoProgressOption) -> None:
     """Write instance inputs (IDF per period, weather, boundary data) without running them."""
     from bpsflow.design_record import require_same_design
@@ -366,7 +366,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
 @_friendly
 def synth(config: Path = ConfigArg,
           truth: Path = typer.Option(..., help="YAML with the true parameter values and noise."),
-          out: Path | None = typer.Option(None, help="Output folder (default RUN_DIR/truth)."),
+          out: Path | None = typer.Option(None, file_okay=False, help="Output folder (default RUN_DIR/truth)."),
           run_dir: Path | None = RunDirOption,
           backend: str | None = typer.Option(None, help="Override model.backend."),
           jobs: int | None = JobsOption,
@@ -488,7 +488,7 @@ def sensitivity(
                                                            "parameter group."),
         screen: int | None = typer.Option(None, help="Write a reduced config keeping the top "
                                              "N inputs of each response, the others fixed."),
-        screen_out: Path | None = typer.Option(None, help="Where --screen writes (default "
+        screen_out: Path | None = typer.Option(None, dir_okay=False, help="Where --screen writes (default "
                                                   "<config stem>_screened.yaml beside CONFIG)."),
         allow_implausible: bool = AllowImplausibleOption,
         run_dir: Path | None = RunDirOption,
@@ -592,7 +592,7 @@ def sensitivity(
 def refine(config: Path = ConfigArg,
            detailed: Path = typer.Option(..., help="detailed.csv (or its folder), with "
                                          "sensor_calibration.csv and detailed.json beside it."),
-           out: Path | None = typer.Option(None, help="Output folder (default RUN_DIR/refine)."),
+           out: Path | None = typer.Option(None, file_okay=False, help="Output folder (default RUN_DIR/refine)."),
            refined_config: Path | None = typer.Option(
                None, "--refined-config", help="Where to write the refined config (default "
                                               "OUT/refined.yaml); its data files go beside it."),
@@ -653,7 +653,7 @@ def calibrate(config: Path = ConfigArg,
               allow_unconverged: bool = typer.Option(False, help="Exit 0 even when NUTS has not "
                                                      "converged (R-hat, ESS, divergences)."),
               allow_implausible: bool = AllowImplausibleOption,
-              out: Path | None = typer.Option(None, help="Output folder (default "
+              out: Path | None = typer.Option(None, file_okay=False, help="Output folder (default "
                                                  "RUN_DIR/calibration)."),
               backend: str | None = BackendOption,
               jobs: int | None = JobsOption,
@@ -689,7 +689,7 @@ def calibrate(config: Path = ConfigArg,
 @_friendly
 def diagnose(config: Path = ConfigArg,
              measured: Path = typer.Option(..., help="Measured data (timestamp + output columns)."),
-             out: Path | None = typer.Option(None, help="Output folder (default "
+             out: Path | None = typer.Option(None, file_okay=False, help="Output folder (default "
                                                 "RUN_DIR/diagnosis)."),
              backend: str | None = BackendOption,
              jobs: int | None = JobsOption,

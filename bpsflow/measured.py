@@ -260,8 +260,13 @@ def _csv_rows(text: str, path: Path) -> tuple[list[str], list[list[str]], np.nda
                 header_line = reader.line_num
                 continue
             if len(record) != len(header):
+                hint = ""
+                if len(header) == 1 and ";" in header[0]:
+                    hint = ("; the file is separated by ';' (with decimal commas?): expected "
+                            "commas between fields and points in numbers (e.g. export as CSV "
+                            "with an English locale)")
                 raise BpsflowError(f"line {reader.line_num}: {len(record)} fields, but the header "
-                                   f"(line {header_line}) has {len(header)}", source=path)
+                                   f"(line {header_line}) has {len(header)}{hint}", source=path)
             rows.append(record)
             lines.append(reader.line_num)
     except csv.Error as exc:
@@ -511,8 +516,11 @@ def _check_scale(frame: pd.DataFrame, config: Config, reference: pd.DataFrame | 
     """Error (or a note) for a column far smaller than the simulations, at their resolution."""
     for column in frame.columns:
         if column in config.outputs:
-            message = _too_small(column, frame[column].to_numpy(dtype=float),
-                                 config.outputs[column].unit, config, reference)
+            values = frame[column].to_numpy(dtype=float)
+            message = _too_small(column, values, config.outputs[column].unit, config,
+                                 reference) or \
+                _temperature_offset(column, values, config.outputs[column].unit, config,
+                                    reference)
             if message:
                 _implausible(message, column, allow, path, notes)
 
@@ -553,6 +561,37 @@ def _ensemble_scale(reference: pd.DataFrame, column: str) -> float:
     return float(np.max(np.abs(finite))) if finite.size else 0.0
 
 
+#: Median difference (K) between a measured temperature and the simulations that no
+#: calibration error explains: a unit mistake (°F, kelvin) or another sensor.
+TEMPERATURE_OFFSET_K = 20.0
+
+
+def _temperature_offset(column: str, values: np.ndarray, unit: str, config: Config,
+                        reference: pd.DataFrame | None) -> str:
+    """A message when a °C column sits far from every simulation ("" if not).
+
+    °F readings of a room (60–90 °F) pass the physical range of °C; against the
+    ensemble's median they are 20 K or more off, and their °C conversion is not.
+    """
+    if reference is None or config.outputs[column].plausible is not None \
+            or unit.strip().upper() not in ("C", "°C", "DEGC"):
+        return ""
+    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
+    simulated, measured = simulated[np.isfinite(simulated)], values[np.isfinite(values)]
+    if not simulated.size or not measured.size:
+        return ""
+    offset = float(np.median(measured) - np.median(simulated))
+    if abs(offset) <= TEMPERATURE_OFFSET_K:
+        return ""
+    hint = ""
+    if abs(float(np.median((measured - 32.0) / 1.8) - np.median(simulated))) < abs(offset) / 3:
+        hint = " (°F in a °C column?)"
+    elif abs(float(np.median(measured - 273.15) - np.median(simulated))) < abs(offset) / 3:
+        hint = " (kelvin in a °C column?)"
+    return (f"column '{column}' [{unit}]: its median {np.median(measured):.4g} is "
+            f"{offset:+.3g} K from the simulations' median {np.median(simulated):.4g}{hint}")
+
+
 def _too_small(column: str, values: np.ndarray, unit: str, config: Config,
                reference: pd.DataFrame | None) -> str:
     """A message when a power or energy column is far smaller than every simulation ("" if not).
@@ -584,14 +623,18 @@ def _unit_mistake(value: float, low: float, high: float, unit: str) -> str:
     key = unit.strip().upper()
     if key in ("C", "°C", "DEGC") and low <= value - 273.15 <= high:
         return "; kelvin in a °C column?"
+    if key in ("C", "°C", "DEGC") and low <= (value - 32.0) / 1.8 <= high and value > high:
+        return "; °F in a °C column?"
     if key == "K" and low <= value + 273.15 <= high:
         return "; °C in a kelvin column?"
-    for factor, guess in ((1000.0, "×1000: milli-units (mK, mW) or a missing decimal point?"),
-                          (1e6, "×10⁶: a unit prefix mistake?"),
-                          (100.0, "×100: a missing decimal point?")):
-        if low <= value / factor <= high:
-            return f"; {guess}"
-    return ""
+    candidates = [(1000.0, "×1000: milli-units (mK, mW) or a missing decimal point"),
+                  (1e6, "×10⁶: a unit prefix mistake"),
+                  (100.0, "×100: a missing decimal point")]
+    if key == "W":
+        # an hour's energy in J read as a mean power is 3600 times too large
+        candidates.insert(0, (3600.0, "×3600: J per hour (an energy) in a W column"))
+    fitting = [guess for factor, guess in candidates if low <= value / factor <= high]
+    return f"; {' or '.join(fitting[:2])}?" if fitting else ""
 
 
 # Windows and resolution -----------------------------------------------------

@@ -84,7 +84,11 @@ def load_truth(path: Path, config: Config) -> Truth:
         raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
     except ValidationError as exc:
         first = exc.errors()[0]
-        raise BpsflowError(f"{_format_location(tuple(first['loc']), raw)}: {first['msg']}",
+        form = ""
+        if isinstance(raw, dict) and ({"model", "parameters", "extends"} & set(raw)):
+            form = (" (this looks like a config: a truth file holds 'seed', 'values: "
+                    "{parameter: value}' and 'noise: {output: ...}')")
+        raise BpsflowError(f"{_format_location(tuple(first['loc']), raw)}: {first['msg']}{form}",
                            source=path) from None
     names = {p.name for p in config.parameters}
     for name, value in truth.values.items():

@@ -525,3 +525,21 @@ def test_hour_beginning_stamps_are_named_with_the_shift_to_make(case):
     shifted.index = shifted.index - pd.Timedelta(hours=1)
     _assert_fails_cleanly(case, case.write(shifted, "hour_beginning.csv"),
                           "look hour-beginning", "add one hour")
+
+
+def test_fahrenheit_and_joules_per_hour_are_named(case):
+    """The hint names the likely unit mistake: °F in a °C column, an hour's J in a W column."""
+    fahrenheit = case.hourly.copy()
+    fahrenheit[AIR] = fahrenheit[AIR] * 1.8 + 32.0
+    _assert_fails_cleanly(case, case.write(fahrenheit, "fahrenheit.csv"), "°F in a °C column?")
+    joules = case.hourly.copy()
+    joules[HEATING] = joules[HEATING] * 3600.0
+    _assert_fails_cleanly(case, case.write(joules, "joules.csv"), f"column '{HEATING}' [W]",
+                          "J per hour (an energy) in a W column")
+
+
+def test_a_semicolon_file_with_decimal_commas_is_named_as_such(case):
+    lines = [line.replace(",", ";") for line in case.csv_lines()]
+    lines = [lines[0]] + [line.replace(".", ",") for line in lines[1:]]
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n", "semicolons.csv"),
+                          "separated by ';'", "decimal commas")
