@@ -585,3 +585,22 @@ def test_scores_over_a_partial_ensemble_come_with_a_note(tmp_path):
     rundir.write_manifest(tmp_path, records)
     assert rundir.ensemble_gap_note(tmp_path, pd.concat(
         [results, results.assign(instance=3)])) is None
+
+
+@pytest.mark.parametrize("script, needle", [
+    ("echo 'engine: out of licences'\nexit 3\n", "exit code 3"),
+    ("kill -9 $$\n", "killed by signal SIGKILL"),
+])
+def test_an_engine_that_dies_is_recorded_with_how_it_ended(tmp_path, script, needle):
+    """An EnergyPlus that dies before writing eplusout.err leaves its exit status, signal
+    and last output in the failure record, not only 'no eplusout.err was written'."""
+    from bpsflow.simulation.energyplus.engine import run_energyplus
+
+    binary = tmp_path / "energyplus"
+    binary.write_text("#!/bin/sh\n" + script)
+    binary.chmod(0o755)
+    outcome = run_energyplus(binary, tmp_path / "in.idf", tmp_path / "w.epw", tmp_path / "out")
+    assert not outcome.ok
+    assert needle in outcome.error and "wrote no eplusout.err" in outcome.error
+    if "licences" in script:
+        assert "out of licences" in outcome.error

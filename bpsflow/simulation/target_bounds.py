@@ -114,8 +114,29 @@ def targeted_fields(config: Config) -> list[TargetedField]:
 
 
 def check_target_fields(config: Config) -> list[TargetedField]:
-    """Check that every IDF target is a field of the IDD (see :func:`targeted_fields`)."""
-    return targeted_fields(config)
+    """Check that every IDF target is a field of the IDD and names objects the model has.
+
+    A target whose object name matches nothing in the model is the config's mistake on
+    any backend (a typo, a renamed object), and is reported as such.
+    """
+    from bpsflow.config import IdfTarget
+    from bpsflow.simulation.idf import describe_model
+
+    fields = targeted_fields(config)
+    objects = model_objects(config.model)
+    for i, parameter in enumerate(config.parameters):
+        for j, target in enumerate(parameter.targets):
+            if not isinstance(target, IdfTarget):
+                continue
+            of_type = [o for o in objects.objects if normalise(o.type) == normalise(target.object)]
+            if not select_objects(of_type, target.name, lambda o: o.name):
+                names = sorted({o.name for o in of_type})
+                raise BpsflowError(
+                    f"parameters[{i}] ({parameter.name}).targets[{j}]: no {target.object} "
+                    f"object named '{target.name}' in {describe_model(config.model)} (objects "
+                    f"of that type: {names[:12] or 'none'}{' ...' if len(names) > 12 else ''})",
+                    source=config.source)
+    return fields
 
 
 def _reach(parameter: Parameter) -> tuple[float, float]:

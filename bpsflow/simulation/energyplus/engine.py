@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import signal
 import sqlite3
 import subprocess
 import time
@@ -116,12 +117,20 @@ def run_energyplus(binary: Path, idf: Path, weather: Path, out_dir: Path,
     sql_ok = (out_dir / "eplusout.sql").is_file()
     if completed.returncode == 0 and completed_ok and sql_ok:
         return RunOutcome(True, seconds)
-    excerpt = error_excerpt(err)
+    if completed_ok and not sql_ok:
+        return RunOutcome(False, seconds, "EnergyPlus completed but wrote no eplusout.sql (is "
+                                          "Output:SQLite in the IDF?)")
+    excerpt = error_excerpt(err) if err.is_file() else ""
     if not excerpt:
-        tail = completed.stdout.strip().splitlines()[-5:]
-        excerpt = "\n".join(tail) or f"exit code {completed.returncode}"
-        if completed_ok and not sql_ok:
-            excerpt = "EnergyPlus completed but wrote no eplusout.sql (is Output:SQLite in the IDF?)"
+        # no severe line to quote (the engine died, or wrote no eplusout.err): how it ended
+        # and the last lines it printed are all there is
+        code = completed.returncode
+        how = (f"killed by signal {signal.Signals(-code).name}" if code < 0 and
+               -code in signal.valid_signals() else f"exit code {code}")
+        tail = "\n".join(completed.stdout.strip().splitlines()[-5:])
+        excerpt = (f"EnergyPlus ended with {how}"
+                   + ("" if err.is_file() else " and wrote no eplusout.err")
+                   + (f"; its last output:\n{tail}" if tail else ""))
     return RunOutcome(False, seconds, excerpt)
 
 
