@@ -250,14 +250,27 @@ def _sample(cfg) -> Path:
 @_friendly
 def check(config: Path = ConfigArg,
           backend: str | None = BackendOption,
+          run: bool = typer.Option(True, "--run/--no-run",
+                                   help="On EnergyPlus, also run the model once at its nominal "
+                                        "values over two days (catches what only the engine "
+                                        "sees, e.g. a broken object reference)."),
           no_progress: bool = NoProgressOption) -> None:
-    """Validate the config, every IDF target and the thermostats against the model; nothing runs."""
+    """Validate the config, every IDF target and the thermostats against the model.
+
+    On EnergyPlus the nominal model then runs once over two days of the first test
+    (--no-run skips it); nothing is written to the run directory.
+    """
     from bpsflow.simulation.backend import choose_backend
 
     cfg = _load(config, None)
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
     report = chosen.check(cfg)
+    trial_run = getattr(chosen, "trial_run", None)
+    if run and trial_run is not None:
+        seconds = trial_run(cfg)
+        report.notes.append(f"the nominal model ran in EnergyPlus over two days of the first "
+                            f"test ({seconds:.1f} s)")
     zones = (f"; setpoints control zone(s) {', '.join(report.controlled_zones)}"
              if report.controlled_zones else "")
     console.print(f"config is valid for {report.backend}: {len(cfg.parameters)} parameters, "

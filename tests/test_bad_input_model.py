@@ -424,3 +424,21 @@ def test_a_misspelt_output_names_the_closest_names_energyplus_reports(tmp_path):
     with pytest.raises(BpsflowError, match=r"outputs\.\w+ \(meter Heating:EnergyTransfr.*did you "
                                            r"mean 'Heating:EnergyTransfer'\?"):
         tidy_outputs(config, 0, empty, tmp_path)
+
+
+def test_check_runs_the_nominal_model_and_quotes_energyplus_on_a_broken_reference(tmp_path):
+    """A surface naming a construction the model lacks passes every static check; the
+    nominal two-day run in check fails with EnergyPlus's own severe line, before a run."""
+    raw = short_raw()
+    source = Path(raw["model"]["idf"])
+    text = source.read_text()
+    line = "SouthWallConstruction,   !- Construction Name"
+    assert line in text
+    broken = text.replace(line, "NoSuchConstruction,   !- Construction Name", 1)
+    raw["model"]["idf"] = str(tmp_path / "broken.idf")
+    (tmp_path / "broken.idf").write_text(broken)
+    config = write_config(tmp_path, raw)
+    assert_clean_error(invoke("check", config), "does not run in EnergyPlus at its nominal",
+                       "NOSUCHCONSTRUCTION")
+    assert_ok(invoke("check", config, "--no-run"))
+    assert not (tmp_path / "run").exists()

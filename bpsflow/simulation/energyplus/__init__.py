@@ -214,6 +214,49 @@ class EnergyPlusBackend:
             weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
             controlled_zones=sorted(template.thermostats.zones))
 
+    def trial_run(self, config: Config) -> float:
+        """Run the model once at its nominal values over two days of its first test.
+
+        What only the engine sees (a broken object reference, an input EnergyPlus
+        refuses as a whole) then fails ``check`` with EnergyPlus's own severe
+        messages instead of failing every instance of a run. Weather and boundary
+        perturbations are left out: they change inputs, not the model.
+
+        Returns
+        -------
+        float
+            Wall seconds of the run.
+
+        Raises
+        ------
+        BpsflowError
+            With the engine's severe/fatal lines when the nominal model does not run.
+        """
+        import tempfile
+
+        from bpsflow.calibration.design import nominal_sample
+        from bpsflow.config import IdfTarget, Period
+
+        trial = config.model_copy(deep=True)
+        test = trial.model.tests[0]
+        first, _, _ = test_dates(test, trial.model.year)
+        days = 2 if (first.month, first.day) != (12, 31) else 1
+        last = first + pd.Timedelta(days=days - 1)
+        trial.model.periods = [Period(name=test.period, start=f"{first:%m-%d}",
+                                      end=f"{last:%m-%d}")]
+        trial.model.tests = [test.model_copy(update={"days": days, "warmup_days": days - 1})]
+        trial.parameters = [p for p in trial.parameters
+                            if all(isinstance(t, IdfTarget) for t in p.targets)]
+        with tempfile.TemporaryDirectory(prefix="bpsflow-check-") as workdir:
+            record, _ = run_instance(trial, 0, nominal_sample(trial), Path(workdir),
+                                     self.binary(config), idd_path(self.binary(config)))
+        if record.status != "ok":
+            raise BpsflowError(
+                f"the model does not run in EnergyPlus at its nominal values (test "
+                f"{test.name}, {first:%m-%d}, {days} day(s)): {record.error}",
+                source=config.source)
+        return record.seconds
+
     def prepare(self, config: Config) -> dict[str, Template]:
         """The model's templates, built here once, for :meth:`install` in each worker."""
         return prepared_templates(config, idd_path(self.binary(config)))
