@@ -442,3 +442,18 @@ def test_check_runs_the_nominal_model_and_quotes_energyplus_on_a_broken_referenc
                        "NOSUCHCONSTRUCTION")
     assert_ok(invoke("check", config, "--no-run"))
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("backend", ["surrogate", "energyplus"])
+def test_a_missing_semicolon_is_pointed_at(tmp_path, backend):
+    """Without an object's ';' the next object runs on as its fields: the error (a target
+    that finds no object, or eppy's own) says where the ';' is probably missing."""
+    raw = short_raw()
+    raw["model"]["backend"] = backend
+    text = Path(raw["model"]["idf"]).read_text()
+    line = "    0.6;                     !- Visible Absorptance"
+    assert line in text
+    raw["model"]["idf"] = str(tmp_path / "broken.idf")
+    (tmp_path / "broken.idf").write_text(text.replace(line, line.replace(";", ","), 1))
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       "Material 'SouthWallExteriorPanel'", "a missing ';'")

@@ -387,3 +387,27 @@ def inside_convection_curve(idf: IdfModel, surface: str) -> str:
                            f"(SurfaceProperty:ConvectionCoefficients)", source=idf.path)
     return idf.find("SURFACECONVECTIONALGORITHM:INSIDE:USERCURVE", algorithm).get(
         "Hc Function of Temperature Difference Curve Name")
+
+
+def missing_semicolon_hint(model: Model) -> str:
+    """Where a missing ';' most likely is ("" if nowhere): an object with a type among its fields.
+
+    Without the ';' that ends an object, the next object's type and fields run on as
+    fields of the first; parsers then fail far from the cause, or a target finds no
+    object of its name.
+    """
+    from bpsflow.simulation.field_limits import known_object_types
+
+    types = known_object_types()
+    try:
+        objects = model_objects(model).objects
+    except BpsflowError:
+        return ""
+    for obj in objects:
+        for value in obj.fields[1:]:
+            # 'Zone' is also a value of several choice fields
+            if value.strip().upper() in types and value.strip().upper() != "ZONE":
+                return (f"; {obj.where} in {obj.source or 'the model'} has the object type "
+                        f"'{value.strip()}' among its fields: a missing ';' at the end of that "
+                        f"object?")
+    return ""

@@ -120,7 +120,7 @@ def check_target_fields(config: Config) -> list[TargetedField]:
     any backend (a typo, a renamed object), and is reported as such.
     """
     from bpsflow.config import IdfTarget
-    from bpsflow.simulation.idf import describe_model
+    from bpsflow.simulation.idf import describe_model, missing_semicolon_hint
 
     fields = targeted_fields(config)
     objects = model_objects(config.model)
@@ -134,8 +134,8 @@ def check_target_fields(config: Config) -> list[TargetedField]:
                 raise BpsflowError(
                     f"parameters[{i}] ({parameter.name}).targets[{j}]: no {target.object} "
                     f"object named '{target.name}' in {describe_model(config.model)} (objects "
-                    f"of that type: {names[:12] or 'none'}{' ...' if len(names) > 12 else ''})",
-                    source=config.source)
+                    f"of that type: {names[:12] or 'none'}{' ...' if len(names) > 12 else ''})"
+                    f"{missing_semicolon_hint(config.model)}", source=config.source)
     return fields
 
 

@@ -32,7 +32,7 @@ from bpsflow.config import (
 )
 from bpsflow.errors import BpsflowError
 from bpsflow.files import write_text_atomic
-from bpsflow.simulation.idf import describe_model, model_objects, model_text
+from bpsflow.simulation.idf import describe_model, missing_semicolon_hint, model_objects, model_text
 from bpsflow.simulation.setpoints import (
     ThermostatPlan,
     control_objects_text,
@@ -145,7 +145,7 @@ def open_model(model: Model, idd: Path):
         idf = IDF(StringIO(text))
     except Exception as exc:
         raise BpsflowError(f"eppy could not parse the model ({describe_model(model)}) against "
-                           f"{idd}: {exc}") from None
+                           f"{idd}: {exc}{missing_semicolon_hint(model)}") from None
     _keep_parsed_idd(Path(idd))
     return idf
 
