@@ -217,3 +217,21 @@ def test_an_edit_outside_the_idd_range_names_the_edit(tmp_path, hydronic):
         "{object: Material, name: 'Brick Outer Leaf', field: Thickness}\n    set: -1", 1),
         hydronic)
     assert "change.edits[0]" in message and "EnergyPlus refuses" in message
+
+
+def test_decision_runs_cover_the_week_and_its_warm_up_only(hydronic):
+    """The re-runs simulate the test week after its test's warm-up days, not the whole
+    calibration period: same evaluated days, a fraction of the simulated ones."""
+    from datetime import date
+
+    from bpsflow.config import period_dates, test_dates
+    from bpsflow.decision.workflow import week_config
+
+    first, last = date(2017, 3, 20), date(2017, 3, 26)
+    week = week_config(hydronic, first, last)
+    test = week.model.tests[0]
+    start, evaluated, end = test_dates(test, week.model.year)
+    assert (evaluated, end) == (first, last)
+    assert test.warmup_days == hydronic.model.tests[0].warmup_days
+    assert period_dates(week.model.periods[0], week.model.year) == (start, last)
+    assert len(week.model.tests) == 1 and week.parameters == hydronic.parameters
