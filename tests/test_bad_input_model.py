@@ -457,3 +457,16 @@ def test_a_missing_semicolon_is_pointed_at(tmp_path, backend):
     (tmp_path / "broken.idf").write_text(text.replace(line, line.replace(";", ","), 1))
     assert_clean_error(invoke("check", write_config(tmp_path, raw)),
                        "Material 'SouthWallExteriorPanel'", "a missing ';'")
+
+
+def test_a_model_that_ran_design_days_only_still_runs_the_tools_period(tmp_path):
+    """Example files often switch weather-file run periods off; the tool's RunPeriod is the
+    simulation, so it switches them on (outputs were empty and named as misspelt)."""
+    raw = short_raw()
+    text = Path(raw["model"]["idf"]).read_text()
+    line = "    Yes,                     !- Run Simulation for Weather File Run Periods"
+    assert line in text
+    raw["model"]["idf"] = str(tmp_path / "design_days.idf")
+    (tmp_path / "design_days.idf").write_text(text.replace(line, line.replace("Yes", "No "), 1))
+    text = assert_ok(invoke("check", write_config(tmp_path, raw)))
+    assert "the nominal model ran in EnergyPlus" in text

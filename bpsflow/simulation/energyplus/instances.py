@@ -357,6 +357,10 @@ def build_templates(config: Config, idd: Path) -> dict[str, Template]:
     for object_type in _REPLACED_TYPES:
         for obj in list(idf.idfobjects.get(object_type, [])):
             idf.removeidfobject(obj)
+    # the tool's RunPeriod is the simulation: a model that ran design days only (common in
+    # example files) would otherwise report nothing for it
+    for control in idf.idfobjects.get("SIMULATIONCONTROL", []):
+        control.Run_Simulation_for_Weather_File_Run_Periods = "Yes"
     _rewire_thermostats(idf, plan)
     slots: dict[tuple[str, int, str], FieldSlot] = {}
     for name, refs in targets.idf_fields.items():
