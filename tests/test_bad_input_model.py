@@ -470,3 +470,17 @@ def test_a_model_that_ran_design_days_only_still_runs_the_tools_period(tmp_path)
     (tmp_path / "design_days.idf").write_text(text.replace(line, line.replace("Yes", "No "), 1))
     text = assert_ok(invoke("check", write_config(tmp_path, raw)))
     assert "the nominal model ran in EnergyPlus" in text
+
+
+def test_a_parameter_on_a_setpoint_schedule_the_tests_replace_is_refused(tmp_path):
+    """The tests' setpoints replace the thermostat's setpoint objects, so a parameter on
+    the schedule only those read changed nothing (mu* = 0 without a word); it is refused."""
+    raw = short_raw()
+    raw["parameters"].append({
+        "name": "model_heating_setpoint", "mode": "absolute",
+        "distribution": {"type": "uniform", "lower": 19.0, "upper": 22.0},
+        "targets": [{"object": "Schedule:Compact", "name": "HeatingSetpointSchedule",
+                     "field": "Field 4"}]})
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "(model_heating_setpoint)", "HeatingSetpointSchedule",
+                       "would change nothing", "mode: model")

@@ -35,6 +35,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from bpsflow.config import Config, IdfTarget, SafeName
@@ -246,10 +248,6 @@ def load_intervention(path: Path, config: Config) -> Intervention:
 def _every_outcome_counts_hours(intervention: Intervention, week_start, week_end,
                                 path: Path) -> None:
     """Refuse, before any simulation, an outcome whose hours miss every hour of the week."""
-    import pandas as pd
-
-    from bpsflow.decision.outcomes import counted_hours
-
     hour_ends = pd.date_range(pd.Timestamp(week_start) + pd.Timedelta(hours=1),
                               pd.Timestamp(week_end) + pd.Timedelta(days=1), freq="h")
     for i, outcome in enumerate(intervention.outcomes):
@@ -272,3 +270,13 @@ def week_dates(intervention: Intervention, config: Config, source: Path | None =
     except ValueError as exc:
         raise BpsflowError(f"week.start: {exc}", source=source) from None
     return start, start + timedelta(days=intervention.week.days - 1)
+
+
+def counted_hours(hour_ends: pd.DatetimeIndex, hours: Hours) -> np.ndarray:
+    """Which hour-ending stamps fall in ``hours`` (judged by the hour each interval starts)."""
+    starts = pd.DatetimeIndex(hour_ends) - pd.Timedelta(hours=1)
+    weekend = starts.day_of_week >= 5
+    day_ok = {"all": np.ones(len(starts), bool), "weekdays": ~weekend,
+              "weekends": weekend}[hours.days]
+    hour_ok = (starts.hour >= hours.start_hour) & (starts.hour < hours.end_hour)
+    return np.asarray(day_ok & hour_ok)

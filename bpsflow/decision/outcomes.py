@@ -9,19 +9,10 @@ each column's starting hour, so the outcome can count only some hours
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 
-from bpsflow.decision.intervention import Hours, Outcome
+from bpsflow.decision.intervention import Outcome, counted_hours
 
-
-def counted_hours(hour_ends: pd.DatetimeIndex, hours: Hours) -> np.ndarray:
-    """Which hour-ending stamps fall in ``hours`` (judged by the hour each interval starts)."""
-    starts = pd.DatetimeIndex(hour_ends) - pd.Timedelta(hours=1)
-    weekend = starts.day_of_week >= 5
-    day_ok = {"all": np.ones(len(starts), bool), "weekdays": ~weekend,
-              "weekends": weekend}[hours.days]
-    hour_ok = (starts.hour >= hours.start_hour) & (starts.hour < hours.end_hour)
-    return np.asarray(day_ok & hour_ok)
+__all__ = ["counted_hours", "outcome_values"]
 
 
 def outcome_values(outcome: Outcome, series: np.ndarray, mask: np.ndarray,

@@ -165,6 +165,60 @@ def zone_equipment(idf: IdfModel) -> dict[str, list[str]]:
     return found
 
 
+def bypassed_setpoint_schedules(idf: IdfModel, plan: ThermostatPlan) -> set[str]:
+    """Schedules (upper case) that only the rewired thermostats' own setpoints read.
+
+    The tests' setpoints replace those thermostats' control objects, so such a
+    schedule no longer acts on the simulation; one that any other object also
+    names (an availability schedule, another thermostat) still does.
+    """
+    chosen = {name.upper() for name in plan.thermostats}
+    setpoint_objects: set[tuple[str, str]] = set()
+    candidates: set[str] = set()
+    for thermostat in idf.of_type(_THERMOSTAT):
+        if thermostat.name.upper() not in chosen:
+            continue
+        candidates.add(_field(thermostat, 2).upper())          # the control type schedule
+        pairs = thermostat.fields[3:]
+        for kind, name in zip(pairs[0::2], pairs[1::2]):
+            setpoint_objects.add((kind.strip().upper(), name.strip().upper()))
+    bypassed = [obj for obj in idf.objects if (obj.type, obj.name.upper()) in setpoint_objects]
+    for obj in bypassed:
+        candidates.update(value.strip().upper() for value in obj.fields[1:])
+    skipped = {id(obj) for obj in bypassed} | {
+        id(t) for t in idf.of_type(_THERMOSTAT) if t.name.upper() in chosen}
+    still_read = {value.strip().upper() for obj in idf.objects if id(obj) not in skipped
+                  and not obj.type.startswith("SCHEDULE")
+                  for value in obj.fields}
+    return {name for name in candidates if name and name not in still_read}
+
+
+def _refuse_bypassed_schedule_targets(config: Config, idf: IdfModel,
+                                      plan: ThermostatPlan) -> None:
+    """A parameter on a schedule the tests' setpoints replace would change nothing."""
+    from bpsflow.config import IdfTarget
+    from bpsflow.simulation.targets import select_objects
+
+    bypassed = bypassed_setpoint_schedules(idf, plan)
+    if not bypassed:
+        return
+    for i, parameter in enumerate(config.parameters):
+        for j, target in enumerate(parameter.targets):
+            if not isinstance(target, IdfTarget) or \
+                    not target.object.strip().upper().startswith("SCHEDULE"):
+                continue
+            chosen = select_objects(idf.of_type(target.object.strip().upper()), target.name)
+            if chosen and all(obj.name.upper() in bypassed for obj in chosen):
+                raise BpsflowError(
+                    f"parameters[{i}] ({parameter.name}).targets[{j}]: {target.object} "
+                    f"'{chosen[0].name}' is a setpoint schedule of the thermostat(s) "
+                    f"{', '.join(plan.thermostats)}, which the tests' setpoints replace "
+                    f"(modes heating, cooling, free_floating): the parameter would change "
+                    f"nothing. The tests' setpoint_c sets the setpoint; to vary the model's "
+                    f"own setpoint schedules, run its own controls with test mode: model",
+                    source=config.source)
+
+
 def thermostat_plan(config: Config, idf: IdfModel) -> ThermostatPlan:
     """Decide which of the model's thermostats carry the tests' setpoints, and check it.
 
@@ -228,6 +282,7 @@ def thermostat_plan(config: Config, idf: IdfModel) -> ThermostatPlan:
                 f"model.thermostat_zones: zone(s) {', '.join(missing)} have no "
                 f"ZoneControl:Thermostat, so the tests' setpoints could not control them",
                 source=config.source)
+    _refuse_bypassed_schedule_targets(config, idf, plan)
     idle = [zone for zone, kit in plan.zones.items() if not kit]
     if idle:
         raise BpsflowError(
