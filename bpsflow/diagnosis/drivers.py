@@ -210,9 +210,9 @@ def derive_drivers(weather: Path, timestamps: pd.DatetimeIndex, measured: pd.Dat
             # A measured column named like a derived driver (an on-site outdoor
             # temperature) is kept beside the weather file's, not instead of it.
             columns = measured.loc[timestamps, extra].astype(float)
-            # a column with no data (or one value) over the analysed hours can explain
-            # nothing: it is left out, and named in drivers.attrs for the report's notes
-            empty = [c for c in extra if columns[c].dropna().nunique() < 2]
+            # a column with no data over the analysed hours can explain nothing: it is
+            # left out, and named in drivers.attrs for the report's notes
+            empty = [c for c in extra if columns[c].notna().sum() == 0]
             columns = columns.drop(columns=empty)
             left_out = empty
             drivers = drivers.join(columns.rename(

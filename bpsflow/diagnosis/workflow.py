@@ -306,7 +306,7 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
     left_out = data[0].drivers.attrs.get("left_out", [])
     if left_out:
         context.notes.append(f"measured column(s) {', '.join(left_out)} left out of the "
-                             "drivers: no data, or one value only, over the analysed hours")
+                             "drivers: no data over the analysed hours")
         announce(context.notes[-1])
     if zones and building_level_zone(config, data[0].output):
         zone = next(iter(zones.values()))

@@ -190,15 +190,6 @@ def check_distribution_support(config: Config) -> None:
     entries = targeted_fields(config)
     ranges: dict[tuple[int, int], tuple[float, float]] = {}
     for entry in entries:
-        last_absolute = max((k for k, p in enumerate(entry.parameters) if p.mode == "absolute"),
-                            default=None)
-        if last_absolute:
-            overridden = [p.name for p in entry.parameters[:last_absolute]]
-            raise BpsflowError(
-                f"parameters ({entry.names}): {entry.parameters[last_absolute].name} (absolute) "
-                f"sets {entry.where} after {', '.join(overridden)}, whose value it replaces: "
-                f"{overridden[0]} would have no effect on the model. Target the field with one "
-                "of them, or make the later one relative or additive", source=config.source)
         reach = _interval(entry)
         if reach is None:
             continue
@@ -213,6 +204,21 @@ def check_distribution_support(config: Config) -> None:
                     f"({problem}). Narrow the distribution (lower/upper) or change the mode",
                     source=config.source)
     _check_sums(config, entries, lambda entry: ranges.get((id(entry.obj), entry.position)))
+    # after the engine's own bounds: a value EnergyPlus refuses is the first thing to fix
+    for entry in entries:
+        last_absolute = max((k for k, p in enumerate(entry.parameters) if p.mode == "absolute"),
+                            default=None)
+        if last_absolute:
+            overridden = [p.name for p in entry.parameters[:last_absolute]]
+            raise BpsflowError(
+                f"parameters ({entry.names}): {entry.parameters[last_absolute].name} (absolute) "
+                f"sets {entry.where} after {', '.join(overridden)}, whose value it replaces: "
+                f"{overridden[0]} would have no effect on the model. Target the field with one "
+                "of them, or make the later one relative or additive", source=config.source)
+
+
+#: Top-of-atmosphere irradiance, W/m² (Kopp & Lean 2011).
+SOLAR_CONSTANT_W_M2 = 1361.0
 
 
 def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> None:
@@ -246,6 +252,10 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
         if quantity not in EPW_RANGES or quantity not in columns:
             continue
         valid_low, valid_high, _, unit = EPW_RANGES[quantity]
+        if quantity.endswith("_radiation"):
+            # the EPW dictionary bounds irradiance below only; a gain on a clear-sky peak is
+            # physics, twice the solar constant is a unit slip
+            valid_high = 2.0 * SOLAR_CONSTANT_W_M2
         values = columns[quantity][np.isfinite(columns[quantity])]
         if values.size == 0:
             continue
