@@ -261,11 +261,13 @@ def check(config: Path = ConfigArg,
     (--no-run skips it); nothing is written to the run directory.
     """
     from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.target_bounds import inert_targets
 
     cfg = _load(config, None)
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
     report = chosen.check(cfg)
+    report.notes.extend(inert_targets(cfg))
     trial_run = getattr(chosen, "trial_run", None)
     if run and trial_run is not None:
         seconds = trial_run(cfg)

@@ -484,3 +484,17 @@ def test_a_parameter_on_a_setpoint_schedule_the_tests_replace_is_refused(tmp_pat
     assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
                        "(model_heating_setpoint)", "HeatingSetpointSchedule",
                        "would change nothing", "mode: model")
+
+
+def test_check_notes_a_relative_parameter_on_a_zero_field(tmp_path):
+    """0 x factor stays 0: a relative parameter on a field the model leaves at 0 moves
+    nothing there, and check says so (the shipped glazing's infrared transmittance is 0)."""
+    raw = short_raw()
+    raw["model"]["backend"] = "surrogate"
+    names = [p["name"] for p in raw["parameters"]]
+    assert "glazing_infrared_transmittance" in names
+    text = assert_ok(invoke("check", write_config(tmp_path, raw)))
+    flat = " ".join(text.split())
+    assert "glazing_infrared_transmittance (relative) cannot move 1 field(s) whose model " \
+           "value is 0" in flat
+    assert "south_wall_insulation_conductivity (relative) cannot" not in flat

@@ -45,7 +45,8 @@ if TYPE_CHECKING:
     from bpsflow.config import Config, Parameter
 
 __all__ = ["TargetedField", "targeted_fields", "check_target_fields",
-           "check_distribution_support", "check_sample_values", "check_weather_support"]
+           "check_distribution_support", "check_sample_values", "check_weather_support",
+           "inert_targets"]
 
 
 @dataclass
@@ -276,6 +277,23 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
                 f"outside the valid {valid_low:g}..{valid_high:g} {unit} of an EPW file. "
                 "Check the distribution's unit and bounds (a sensor error is a few units, "
                 "in the quantity's own unit)", source=config.source)
+
+
+def inert_targets(config: Config) -> list[str]:
+    """Fields a parameter cannot move: a relative change of a model value of zero.
+
+    ``0 × factor`` stays 0, so such a parameter does nothing on that object (a design
+    flow left at 0 beside objects sized by area). Returned as notes, one per parameter.
+    """
+    inert: dict[str, list[str]] = {}
+    for entry in targeted_fields(config):
+        if entry.nominal == 0 and entry.parameters and \
+                all(p.mode == "relative" for p in entry.parameters):
+            for parameter in entry.parameters:
+                inert.setdefault(parameter.name, []).append(entry.where)
+    return [f"{name} (relative) cannot move {len(wheres)} field(s) whose model value is 0: "
+            f"{'; '.join(wheres[:3])}{' ...' if len(wheres) > 3 else ''}"
+            for name, wheres in inert.items()]
 
 
 def _spectral_average(obj: IdfObject) -> bool:
