@@ -554,10 +554,15 @@ def plausible_range(config: Config, column: str, reference: pd.DataFrame | None
     return -np.inf, np.inf, "unchecked"
 
 
+def _ensemble_values(reference: pd.DataFrame, column: str) -> np.ndarray:
+    """The finite simulated values of ``column`` over the ensemble."""
+    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
+    return simulated[np.isfinite(simulated)]
+
+
 def _ensemble_scale(reference: pd.DataFrame, column: str) -> float:
     """The largest finite magnitude of ``column`` over the simulated ensemble (0 if none)."""
-    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
-    finite = simulated[np.isfinite(simulated)]
+    finite = _ensemble_values(reference, column)
     return float(np.max(np.abs(finite))) if finite.size else 0.0
 
 
@@ -576,8 +581,7 @@ def _temperature_offset(column: str, values: np.ndarray, unit: str, config: Conf
     if reference is None or config.outputs[column].plausible is not None \
             or unit.strip().upper() not in ("C", "°C", "DEGC"):
         return ""
-    simulated = reference.loc[reference["output"] == column, "value"].to_numpy(dtype=float)
-    simulated, measured = simulated[np.isfinite(simulated)], values[np.isfinite(values)]
+    simulated, measured = _ensemble_values(reference, column), values[np.isfinite(values)]
     if not simulated.size or not measured.size:
         return ""
     offset = float(np.median(measured) - np.median(simulated))

@@ -247,9 +247,10 @@ class EnergyPlusBackend:
         trial.model.tests = [test.model_copy(update={"days": days, "warmup_days": days - 1})]
         trial.parameters = [p for p in trial.parameters
                             if all(isinstance(t, IdfTarget) for t in p.targets)]
+        binary = self.binary(config)
         with tempfile.TemporaryDirectory(prefix="bpsflow-check-") as workdir:
-            record, _ = run_instance(trial, 0, nominal_sample(trial), Path(workdir),
-                                     self.binary(config), idd_path(self.binary(config)))
+            record, _ = run_instance(trial, 0, nominal_sample(trial), Path(workdir), binary,
+                                     idd_path(binary))
         if record.status != "ok":
             raise BpsflowError(
                 f"the model does not run in EnergyPlus at its nominal values (test "
