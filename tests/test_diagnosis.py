@@ -326,6 +326,35 @@ def test_a_daytime_gain_while_the_heating_is_off_is_a_gain_with_its_hours_and_si
 
 
 @pytest.mark.slow
+def test_an_evening_gain_seen_only_the_next_morning_is_put_on_its_own_day(tmp_path):
+    """A Tuesday 18–24 h gain under a 19–6 h setback in January (the randomised r041).
+
+    The heating is off while the gain runs, so the residuals show it only on
+    Wednesday 0–4 h, when the stored heat offsets the reheat. The residual's
+    own block (Wednesday night) was rejected by the cross-validation; the
+    block must be found on the day before by its simulated response. The
+    truth is the randomised benchmark's own OtherEquipment
+    (bench/diagnosis_random.py, seed 870748840, truth 41).
+    """
+    dr = bench_truths()
+    truth = dr.Truth(41, "gain", "test_cell", "surrogate", (1, 4), 26.8, (20.9, 19, 6), 0.84,
+                     670180940, [dr.Effect("gain", 1.976, {"days": "tuesday", "start_hour": 18,
+                                                           "end_hour": 24,
+                                                           "radiant_fraction": 0.22})])
+    built, result = diagnose_bench_truth(truth, tmp_path)
+    accepted = [e for e in result.extensions if e["accepted"]]
+    assert [e["cause"] for e in accepted] == ["internal_gain_schedule"]
+    block = accepted[0]["schedule"]
+    assert block["day_type"] == "tuesday"
+    assert 17 <= block["start_hour"] <= 19 and block["end_hour"] >= 22
+    hours = block["end_hour"] - block["start_hour"]
+    # the energy over the evening, not the level alone, is what the next morning sees
+    assert accepted[0]["fitted"]["scheduled_gain_w"] * hours == pytest.approx(
+        built.sizes[0]["W"] * 6, rel=0.2)
+    assert result.gain["after"] < 0.5 * result.gain["before"]
+
+
+@pytest.mark.slow
 def test_a_cause_accepted_first_that_later_causes_explain_is_pruned(tmp_path):
     """Hidden thermal mass and a west aperture (the randomised r045): no third cause is named.
 

@@ -54,6 +54,7 @@ from bpsflow.diagnosis import comparison, crossval, structure
 from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (
     EXTENSIONS,
+    WEEK_DAYS,
     block_profile,
     building_level_zone,
     diagnosis_zone,
@@ -2031,20 +2032,31 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
 PULSE_JUMPS = 3
 
 
+def _pulse_days(kind: str) -> list[str]:
+    """The day types whose hours a block of ``kind`` may jump to: its own, and for a
+    single day the day before (a gain on a Tuesday evening while the heating is off
+    shows in the residuals only on Wednesday morning, when the stored heat offsets
+    the heating; no block of Wednesday's hours reproduces that)."""
+    if kind in WEEK_DAYS:
+        return [WEEK_DAYS[WEEK_DAYS.index(kind) - 1], kind]
+    return [kind]
+
+
 def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict,
                  fitted: list[Parameter], new: list[Parameter], values: np.ndarray,
                  level_column: int, corrected, own_design, directory: Path,
                  round_number: int) -> tuple[list[tuple[str, int, int]], np.ndarray | None]:
-    """The blocks of the gain's day type whose simulated response fits the data best.
+    """The blocks whose simulated response fits the data best, on the gain's day type
+    and, for a single day, the day before (:func:`_pulse_days`).
 
-    One batch of 25 runs: the current fit without the block, and one
-    one-hour pulse of the block's day type for each hour of the day, at the
-    block's fitted level and radiant fraction. A block's response is the sum
-    of its hours' pulse effects (superposition: exact for a linear model, a
-    first approximation where the output clips at zero). Every block
-    ``[a, b)`` is scored by the residual sum of squares left after the same
-    bounded linear correction as an edge move, with the block's own effect
-    per watt as its level's column.
+    One batch of runs: the current fit without the block, and one one-hour
+    pulse for each hour of each of those day types, at the block's fitted
+    level and radiant fraction. A block's response is the sum of its hours'
+    pulse effects (superposition: exact for a linear model, a first
+    approximation where the output clips at zero). Every block ``[a, b)`` of
+    those day types is scored by the residual sum of squares left after the
+    same bounded linear correction as an edge move, with the block's own
+    effect per watt as its level's column.
 
     Returns
     -------
@@ -2062,14 +2074,18 @@ def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict
         return [], None
     extension = EXTENSIONS["internal_gain_schedule"]
     known = {q.name for q in config.parameters}
+    days = _pulse_days(kind)
     union, pulses = config, []
-    for hour in range(24):
-        schedule = profile_schedule(block_profile(kind, hour, hour + 1), config.model.year)
-        number = _fresh_variant(config, "internal_gain_schedule", 2000 + hour)
-        variant = extend_config(config, extension, directory / "pulses", schedule, number,
-                                zone=detail.get("zone"), output=d.output)
-        union = _merge(union, variant)
-        pulses.append([q for q in variant.parameters if q.name not in known])
+    for day_number, day_type in enumerate(days):
+        for hour in range(24):
+            schedule = profile_schedule(block_profile(day_type, hour, hour + 1),
+                                        config.model.year)
+            number = _fresh_variant(config, "internal_gain_schedule",
+                                    2000 + 100 * day_number + hour)
+            variant = extend_config(config, extension, directory / "pulses", schedule, number,
+                                    zone=detail.get("zone"), output=d.output)
+            union = _merge(union, variant)
+            pulses.append([q for q in variant.parameters if q.name not in known])
     base_row = context.sample_of(union, current.fit)
     base_row.update(dict(zip([q.name for q in fitted], values)))
     base_row.update({q.name: 0.0 for q in new})
@@ -2086,14 +2102,16 @@ def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict
     if not np.isfinite(runs).all():
         return [], None
     without = runs[0]
-    # cumulative[h]: the summed effect of the pulses before hour h
-    cumulative = np.vstack([np.zeros_like(without), np.cumsum(runs[1:] - without, axis=0)])
     scores = {}
-    for first in range(24):
-        for last in range(first + 1, 25):
-            effect = cumulative[last] - cumulative[first]
-            scores[(kind, first, last)] = corrected(without + effect, values,
-                                                    own_design(effect, level))[0]
+    for day_number, day_type in enumerate(days):
+        effects = runs[1 + 24 * day_number: 25 + 24 * day_number] - without
+        # cumulative[h]: the summed effect of the day's pulses before hour h
+        cumulative = np.vstack([np.zeros_like(without), np.cumsum(effects, axis=0)])
+        for first in range(24):
+            for last in range(first + 1, 25):
+                effect = cumulative[last] - cumulative[first]
+                scores[(day_type, first, last)] = corrected(without + effect, values,
+                                                            own_design(effect, level))[0]
     here = (kind, block["start_hour"], block["end_hour"])
     bar = scores[here]
     better = sorted((rss, key) for key, rss in scores.items() if key != here and rss < bar)
