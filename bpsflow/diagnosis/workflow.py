@@ -100,6 +100,14 @@ HELDOUT_LAGS = 24
 #: this (Kass & Raftery 1995: 2 is where evidence starts to count).
 SCREEN_START_MARGIN = 2.0
 
+#: Latin-hypercube points screened per candidate with two or more new parameters
+#: for a third start of its fit (:func:`_start_screen`).
+EXTENSION_START_SCREEN = 8
+#: A new parameter nesting at zero is screened on a geometric scale over this many
+#: decades below its upper bound: a missing effect's size is unknown to orders of
+#: magnitude (an internal mass of 1 m² against a bound of 100 m²).
+START_SCREEN_DECADES = 3.0
+
 
 @dataclass
 class Model:
@@ -1269,9 +1277,12 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     # Each cause is fitted from its nesting zero (the fit can only improve on
     # the current model), and again from the screen's linearised optimum when
     # the screen promised a BIC lower by SCREEN_START_MARGIN than the first fit
-    # reached: an internal mass's area and thickness trade along a long valley
-    # that a fit from zero can stall in. The better of the two is kept; a cause
-    # whose first fit reached its promise costs no second batch of runs.
+    # reached, and from the best point of a small lattice over its new
+    # parameters when that point alone beats the first fit (_start_screen): an
+    # internal mass's area and thickness trade along a long valley that a fit
+    # from zero can stall in, and at zero area the linearised screen cannot see
+    # the thickness. The best fit is kept; a cause whose first fit reached both
+    # promises costs no further fit.
     cal = d.calibration
     problems, flat_fitted = [], []
     for i in selected:
@@ -1285,14 +1296,24 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         problems.append(Problem(union_sample, fitted, d.y, d.calibration, from_zero))
         flat_fitted.append(flat[i])
     fits = context.fit(union, f"round{round_number}", problems)
+    # a law's terms are chosen by BIC after its fit (_choose_terms): a random point of
+    # every term at once is no start for it
+    lattice = _start_screen(context, current, union, union_sample,
+                            [[] if _is_law(flat[i][0].family) else flat[i][1][1]
+                             for i in selected],
+                            [len(problem.parameters) for problem in problems], round_number)
     again = []
-    for i, problem, fit in zip(selected, problems, fits):
+    for i, problem, fit, (point, point_bic) in zip(selected, problems, fits, lattice):
         from_screen = {**(problem.start or {}), **screen_starts[i]}
         reached = (np.inf if fit.failed else
                    comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters)))
         if from_screen != problem.start and screened[i] < reached - SCREEN_START_MARGIN:
             again.append(Problem(union_sample, problem.parameters, d.y, d.calibration,
                                  from_screen))
+            flat_fitted.append(flat[i])
+        if point and point_bic < reached - SCREEN_START_MARGIN:
+            again.append(Problem(union_sample, problem.parameters, d.y, d.calibration,
+                                 {**(problem.start or {}), **point}))
             flat_fitted.append(flat[i])
     if again:
         fits = [*fits, *context.fit(union, f"round{round_number}_screen_start", again)]
@@ -1592,6 +1613,70 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
         if starts is not None:
             starts.append(best[2])
     return out, per_trial
+
+
+def _start_screen(context: _Context, current: Model, union: Config, union_sample: dict,
+                  free_sets: list[list[Parameter]], counts: list[int], round_number: int
+                  ) -> list[tuple[dict[str, float], float]]:
+    """Per candidate, the best point of a Latin hypercube over its new parameters, and its BIC.
+
+    A candidate with two or more new parameters gets
+    :data:`EXTENSION_START_SCREEN` points (the existing parameters at the
+    current fit), all candidates' points in one batch. A new parameter that
+    nests at zero is spread geometrically over :data:`START_SCREEN_DECADES`
+    decades below its upper bound, the others uniformly over their range.
+    The point's BIC counts ``counts`` parameters (the candidate's fit), so
+    it is comparable with the BIC its fit from zero reached. A candidate
+    with fewer new parameters, or whose points did not run, gets
+    ``({}, inf)``.
+    """
+    from scipy.optimize import lsq_linear
+
+    from bpsflow.sampling import latin_hypercube_unit
+
+    d = context.data
+    cal = d.calibration
+    rows, owners = [], []
+    for number, free in enumerate(free_sets):
+        if len(free) < 2:
+            continue
+        unit = latin_hypercube_unit(EXTENSION_START_SCREEN, len(free),
+                                    context.settings.seed + 7919 * round_number + number)
+        for row in unit:
+            point = {}
+            for p, u in zip(free, row):
+                low, high = parameter_range(p)
+                point[p.name] = float(high * 10.0 ** (START_SCREEN_DECADES * (u - 1.0))
+                                      if low == 0.0 and high > 0.0 else low + u * (high - low))
+            rows.append({**union_sample, **point})
+            owners.append((number, point))
+    best: list[tuple[dict[str, float], float]] = [({}, np.inf) for _ in free_sets]
+    if not rows:
+        return best
+    started = time.perf_counter()
+    predicted = np.asarray(context.simulator(union, f"round{round_number}_start_screen")(
+        pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance"))), dtype=float)
+    label = f"round{round_number}_start_screen"
+    context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+    jacobian = current.fit.jacobian[cal]
+    values = current.fit.values
+    ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
+    scale = np.maximum(np.abs(jacobian).max(axis=0), 1e-300) if jacobian.size else None
+    for (number, point), prediction in zip(owners, predicted):
+        if not np.isfinite(prediction[cal]).all():
+            continue
+        residual = d.y[cal] - prediction[cal]
+        if scale is not None:
+            # the existing parameters were bent towards the missing effect: a point is
+            # judged after their best bounded linear step back (the fit's Jacobian)
+            lower = (ranges[:, 0] - values) * scale
+            upper = np.maximum((ranges[:, 1] - values) * scale, lower + 1e-12)
+            step = lsq_linear(jacobian / scale, residual, bounds=(lower, upper)).x
+            residual = residual - (jacobian / scale) @ step
+        bic = comparison.bic(residual, counts[number])
+        if bic < best[number][1]:
+            best[number] = (point, bic)
+    return best
 
 
 def _trial_step(parameter: Parameter, now: float, share: float) -> float:
