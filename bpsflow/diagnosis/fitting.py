@@ -108,6 +108,11 @@ class OutputSimulator:
         return wide.reindex(index=labels, columns=timestamps).to_numpy(dtype=float)
 
     def __call__(self, samples: pd.DataFrame) -> np.ndarray:
+        if self.backend.vectorised:
+            return self._simulate(samples)
+        return self._resumable(samples)
+
+    def _simulate(self, samples: pd.DataFrame) -> np.ndarray:
         from bpsflow.simulation.ensemble import simulate_batch, simulate_samples
 
         self.calls += 1
@@ -126,6 +131,45 @@ class OutputSimulator:
                          if int(label) in outcome.failed}
         for row in self.failures:
             matrix[row] = np.nan
+        return matrix
+
+    def _resumable(self, samples: pd.DataFrame) -> np.ndarray:
+        """:meth:`_simulate` for the rows not already in the run cache (slow backends only).
+
+        Every finished row is stored (:mod:`bpsflow.simulation.run_cache`), so the
+        same command run again after a stop simulates only what it had not
+        finished. Failed rows are not stored and run again.
+        """
+        from bpsflow.boundary import ensure_sequences
+        from bpsflow.simulation import rundir
+        from bpsflow.simulation.ensemble import run_config
+        from bpsflow.simulation.run_cache import RunCache, model_digest
+
+        # the sequences are part of the key: draw them before the first digest
+        rundir.prepare_run_dir(self.sequences_dir)
+        ensure_sequences(run_config(self.config, self.sequences_dir))
+        cache = RunCache(self.sequences_dir / "cache")
+        values = samples.drop(columns=["instance"], errors="ignore")
+        keys = cache.keys(model_digest(self.config, self.backend.name, self.sequences_dir),
+                          self.output, self.timestamps, values)
+        matrix = np.full((len(samples), len(self.timestamps)), np.nan)
+        missing = []
+        for row, key in enumerate(keys):
+            stored = cache.get(key, len(self.timestamps))
+            if stored is None:
+                missing.append(row)
+            else:
+                matrix[row] = stored
+        failures: dict[int, str] = {}
+        if missing:
+            self.failures = {}
+            ran = self._simulate(samples.iloc[missing])
+            failures = {missing[row]: error for row, error in self.failures.items()}
+            for row, output in zip(missing, ran):
+                matrix[row] = output
+                if row not in failures and np.isfinite(output).all():
+                    cache.put(keys[row], output)
+        self.failures = failures
         return matrix
 
 
