@@ -53,6 +53,7 @@ from bpsflow.config import Config, Parameter, test_dates
 from bpsflow.diagnosis import comparison, crossval, structure
 from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (
+    DAY_TYPES,
     EXTENSIONS,
     WEEK_DAYS,
     block_profile,
@@ -2113,8 +2114,11 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     return variant, added, {**detail, "schedule": {**detail["schedule"], **block}}, refit
 
 
-#: Blocks a gain block may jump to before its edges move (:func:`_pulse_jumps`).
-PULSE_JUMPS = 3
+#: Blocks a gain block may jump to before its edges move (:func:`_pulse_jumps`): each
+#: runs once, in one batch.
+PULSE_JUMPS = 6
+#: ... none sharing more than this share of its hours (Jaccard) with one listed before it.
+PULSE_JUMP_OVERLAP = 0.3
 
 
 def _pulse_days(kind: str) -> list[str]:
@@ -2200,7 +2204,29 @@ def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict
     here = (kind, block["start_hour"], block["end_hour"])
     bar = scores[here]
     better = sorted((rss, key) for key, rss in scores.items() if key != here and rss < bar)
-    return [key for _, key in better[:PULSE_JUMPS]], without
+    # superposition errs where the output clips (a long block drives the heating to zero,
+    # its pulses one by one do not), so the shortlist that runs for real is spread out:
+    # a block mostly the same hours as one already listed adds nothing
+    jumps: list[tuple[str, int, int]] = []
+    for _, key in better:
+        if len(jumps) == PULSE_JUMPS:
+            break
+        if not any(_overlap(key, other) > PULSE_JUMP_OVERLAP for other in jumps):
+            jumps.append(key)
+    return jumps, without
+
+
+def _overlap(one: tuple[str, int, int], other: tuple[str, int, int]) -> float:
+    """Jaccard overlap of two blocks' hours of the week (day type, start, end)."""
+    first = _week_hours(*one)
+    second = _week_hours(*other)
+    union = len(first | second)
+    return len(first & second) / union if union else 0.0
+
+
+def _week_hours(day_type: str, start_hour: int, end_hour: int) -> set[tuple[int, int]]:
+    return {(day, hour) for day, on in enumerate(DAY_TYPES[day_type]) if on
+            for hour in range(start_hour, end_hour)}
 
 
 def _original_new(extended: Config, current: Model) -> list[Parameter]:
