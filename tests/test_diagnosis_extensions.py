@@ -401,3 +401,26 @@ def test_gain_blocks_ignore_hours_at_which_the_output_cannot_respond():
     # middays happened to be dull wins instead
     unmasked = gain_blocks(pd.Series(residual, index=hours), -1.0, count=3)
     assert unmasked[0][1]["day_type"] != "all days"
+
+
+def test_the_console_table_names_each_extension_by_its_cause_and_face():
+    """Two apertures tried in one round must be told apart (before, both read
+    '+ solar_aperture')."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from bpsflow.diagnosis.command import summary_table
+
+    scores = {"cvrmse": 0.05, "nmcrps": 0.03, "nmbe": 0.0}
+    result = SimpleNamespace(
+        output="heating_power_w", verdict="model_form", parameter_fit=None,
+        scorecard={"heldout": scores},
+        extensions=[{"name": "solar_aperture", "cause": f"solar_aperture ({face})", "round": 1,
+                     "fitted": {"solar_aperture_m2": 0.5}, "heldout": {"after": scores},
+                     "accepted": face == "west"} for face in ("west", "north")])
+    console = Console(width=200, record=True)
+    console.print(summary_table(result))
+    text = console.export_text()
+    assert "+ solar_aperture (west) (round 1)" in text
+    assert "+ solar_aperture (north) (round 1)" in text

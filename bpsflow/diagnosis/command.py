@@ -79,7 +79,7 @@ def summary_table(result: Diagnosis) -> Table:
                   f"{held['nmbe']:+.2%}", "")
     for e in result.extensions:
         after = e["heldout"]["after"]
-        table.add_row(f"+ {e['name']} (round {e['round']})",
+        table.add_row(f"+ {e.get('cause', e['name'])} (round {e['round']})",
                       ", ".join(f"{k} = {v:.4g}" for k, v in e["fitted"].items()),
                       f"{after['cvrmse']:.2%}", f"{after['nmcrps']:.2%}",
                       f"{after['nmbe']:+.2%}", "yes" if e.get("accepted") else "no")
