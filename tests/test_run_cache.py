@@ -78,3 +78,18 @@ def test_energyplus_outputs_are_reused_on_a_rerun_and_rerun_when_the_model_chang
     assert model_digest(config, "energyplus", tmp_path / "runs") != digest
     simulator()(_samples([0.8], config))
     assert ran == [1, 1]                                 # a changed model runs again
+
+
+def test_a_file_rewritten_within_one_clock_tick_is_read_again(tmp_path):
+    """Same path, same size, same modification time, other bytes: a new digest."""
+    import os
+
+    from bpsflow.simulation.run_cache import file_digest
+
+    path = tmp_path / "schedule.csv"
+    path.write_text("1,0\n")
+    first = file_digest(path)
+    stamp = path.stat().st_mtime_ns
+    path.write_text("0,1\n")
+    os.utime(path, ns=(stamp, stamp))
+    assert file_digest(path) != first

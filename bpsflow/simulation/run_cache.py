@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +24,11 @@ import pandas as pd
 
 from bpsflow.config import Config
 
-#: Per file: (path, size, modification time in ns) -> its SHA-256, read once per process.
-_FILE_DIGESTS: dict[tuple[str, int, int], str] = {}
+#: Per file: (path, inode, size, modification time in ns) -> its SHA-256, read once per process.
+_FILE_DIGESTS: dict[tuple[str, int, int, int], str] = {}
+#: A file modified less than this long ago (s) is read again at every call: file-system
+#: clocks tick in milliseconds, so two writes of the same size in one tick share a time.
+SETTLED_SECONDS = 2.0
 
 
 def file_digest(path: Path) -> str:
@@ -33,10 +37,13 @@ def file_digest(path: Path) -> str:
         stat = path.stat()
     except OSError:
         return "missing"
-    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
-    if key not in _FILE_DIGESTS:
-        _FILE_DIGESTS[key] = hashlib.sha256(path.read_bytes()).hexdigest()
-    return _FILE_DIGESTS[key]
+    key = (str(path.resolve()), stat.st_ino, stat.st_size, stat.st_mtime_ns)
+    if key in _FILE_DIGESTS:
+        return _FILE_DIGESTS[key]
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if time.time() - stat.st_mtime > SETTLED_SECONDS:
+        _FILE_DIGESTS[key] = digest
+    return digest
 
 
 def _input_files(config: Config, sequences_dir: Path) -> list[Path]:
