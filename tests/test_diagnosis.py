@@ -299,6 +299,23 @@ def test_an_aperture_that_an_existing_input_half_absorbs_is_named_when_it_fits_b
     assert result.gain["after"] < 0.5 * result.gain["before"]
 
 
+def diagnose_gain_truth(tmp_path: Path, index: int, start: tuple[int, int], setpoint_c: float,
+                        setback: tuple, phi: float, noise_seed: int, multiple: float,
+                        shape: dict):
+    """Diagnose the randomised benchmark's gain truth ``index`` on the test cell (surrogate).
+
+    Returns the truth as built, the diagnosis, its one accepted extension (which
+    must be a scheduled gain) and that extension's block.
+    """
+    dr = bench_truths()
+    truth = dr.Truth(index, "gain", "test_cell", "surrogate", start, setpoint_c, setback, phi,
+                     noise_seed, [dr.Effect("gain", multiple, shape)])
+    built, result = diagnose_bench_truth(truth, tmp_path)
+    accepted = [e for e in result.extensions if e["accepted"]]
+    assert [e["cause"] for e in accepted] == ["internal_gain_schedule"]
+    return built, result, accepted[0], accepted[0]["schedule"]
+
+
 @pytest.mark.slow
 def test_a_daytime_gain_while_the_heating_is_off_is_a_gain_with_its_hours_and_size(tmp_path):
     """A 10–18 h gain on all days in November at a 26.9 °C setpoint (the randomised r023).
@@ -310,18 +327,11 @@ def test_a_daytime_gain_while_the_heating_is_off_is_a_gain_with_its_hours_and_si
     aperture was named instead). The truth is the randomised benchmark's own
     OtherEquipment (bench/diagnosis_random.py, seed 958274719, truth 23).
     """
-    dr = bench_truths()
-    truth = dr.Truth(23, "gain", "test_cell", "surrogate", (11, 15), 26.9, (23.4, 18, 5), 0.88,
-                     1297308459, [dr.Effect("gain", 4.053, {"days": "all days", "start_hour": 10,
-                                                            "end_hour": 18,
-                                                            "radiant_fraction": 0.03})])
-    built, result = diagnose_bench_truth(truth, tmp_path)
-    accepted = [e for e in result.extensions if e["accepted"]]
-    assert [e["cause"] for e in accepted] == ["internal_gain_schedule"]
-    block = accepted[0]["schedule"]
+    built, result, gain, block = diagnose_gain_truth(
+        tmp_path, 23, (11, 15), 26.9, (23.4, 18, 5), 0.88, 1297308459, 4.053,
+        {"days": "all days", "start_hour": 10, "end_hour": 18, "radiant_fraction": 0.03})
     assert (block["day_type"], block["start_hour"], block["end_hour"]) == ("all days", 10, 18)
-    assert accepted[0]["fitted"]["scheduled_gain_w"] == pytest.approx(built.sizes[0]["W"],
-                                                                      rel=0.15)
+    assert gain["fitted"]["scheduled_gain_w"] == pytest.approx(built.sizes[0]["W"], rel=0.15)
     assert result.gain["after"] < 0.5 * result.gain["before"]
 
 
@@ -336,20 +346,14 @@ def test_an_evening_gain_seen_only_the_next_morning_is_put_on_its_own_day(tmp_pa
     truth is the randomised benchmark's own OtherEquipment
     (bench/diagnosis_random.py, seed 870748840, truth 41).
     """
-    dr = bench_truths()
-    truth = dr.Truth(41, "gain", "test_cell", "surrogate", (1, 4), 26.8, (20.9, 19, 6), 0.84,
-                     670180940, [dr.Effect("gain", 1.976, {"days": "tuesday", "start_hour": 18,
-                                                           "end_hour": 24,
-                                                           "radiant_fraction": 0.22})])
-    built, result = diagnose_bench_truth(truth, tmp_path)
-    accepted = [e for e in result.extensions if e["accepted"]]
-    assert [e["cause"] for e in accepted] == ["internal_gain_schedule"]
-    block = accepted[0]["schedule"]
+    built, result, gain, block = diagnose_gain_truth(
+        tmp_path, 41, (1, 4), 26.8, (20.9, 19, 6), 0.84, 670180940, 1.976,
+        {"days": "tuesday", "start_hour": 18, "end_hour": 24, "radiant_fraction": 0.22})
     assert block["day_type"] == "tuesday"
     assert 17 <= block["start_hour"] <= 19 and block["end_hour"] >= 22
     hours = block["end_hour"] - block["start_hour"]
     # the energy over the evening, not the level alone, is what the next morning sees
-    assert accepted[0]["fitted"]["scheduled_gain_w"] * hours == pytest.approx(
+    assert gain["fitted"]["scheduled_gain_w"] * hours == pytest.approx(
         built.sizes[0]["W"] * 6, rel=0.2)
     assert result.gain["after"] < 0.5 * result.gain["before"]
 
@@ -365,15 +369,9 @@ def test_a_long_evening_gain_whose_pulses_overstate_it_is_still_tried_as_a_block
     The blocks that run for real are spread over the day, so a Tuesday evening block
     is simulated and wins.
     """
-    dr = bench_truths()
-    truth = dr.Truth(50, "gain", "test_cell", "surrogate", (3, 7), 26.3, (22.7, 20, 5), 0.15,
-                     1885461481, [dr.Effect("gain", 2.631, {"days": "tuesday",
-                                                            "start_hour": 15, "end_hour": 23,
-                                                            "radiant_fraction": 0.45})])
-    built, result = diagnose_bench_truth(truth, tmp_path)
-    accepted = [e for e in result.extensions if e["accepted"]]
-    assert [e["cause"] for e in accepted] == ["internal_gain_schedule"]
-    block = accepted[0]["schedule"]
+    built, result, gain, block = diagnose_gain_truth(
+        tmp_path, 50, (3, 7), 26.3, (22.7, 20, 5), 0.15, 1885461481, 2.631,
+        {"days": "tuesday", "start_hour": 15, "end_hour": 23, "radiant_fraction": 0.45})
     assert block["day_type"] == "tuesday" and block["start_hour"] >= 14
     assert block["end_hour"] in (22, 23, 24)
     assert result.gain["after"] < 0.7 * result.gain["before"]
