@@ -193,6 +193,11 @@ def metered(values: np.ndarray, timestamps: pd.DatetimeIndex, increment: float,
     return out
 
 
+def applied_noise(config: Config, truth: Truth, output: str) -> Noise:
+    """The sensor noise ``synth`` adds to ``output``: the truth's own, else the unit's default."""
+    return truth.noise.get(output) or default_noise(config.outputs[output].unit)
+
+
 def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Truth) -> pd.DataFrame:
     """Wide, noisy measurements of the config's outputs from a truth instance's tidy outputs."""
     outputs = outputs[outputs["output"].isin(list(config.outputs))]
@@ -203,7 +208,7 @@ def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Trut
     step = pd.Timedelta(np.median(steps)) if len(steps) else pd.Timedelta(hours=1)
     starts = np.flatnonzero(steps != step.to_timedelta64()) + 1
     for output in wide.columns:
-        noise = truth.noise.get(output) or default_noise(config.outputs[output].unit)
+        noise = applied_noise(config, truth, output)
         wide[output] = add_noise(wide[output].to_numpy(), noise, rng, starts)
         if noise.increment is not None:
             wide[output] = metered(wide[output].to_numpy(), wide.index, noise.increment, step)
@@ -250,7 +255,12 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     measured = measurements_from_outputs(config, outputs, truth)
     path = out_dir / MEASURED_FILE
     write_csv(measured, path, index_label="timestamp", float_format="%.6g")
-    record = {"values": sample, "noise": {k: v.model_dump() for k, v in truth.noise.items()},
+    # every measured output's noise as applied, the defaults too: the record alone says
+    # what was added to the measurements
+    record = {"values": sample,
+              "noise": {output: applied_noise(config, truth, output).model_dump()
+                        for output in measured.columns},
+              "noise_defaulted": sorted(set(measured.columns) - set(truth.noise)),
               "seed": truth.seed, "backend": backend}
     if detailed:
         record["detailed"] = write_detailed_measurements(config, sample, outputs, truth.seed,

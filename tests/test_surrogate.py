@@ -266,6 +266,24 @@ def test_synthetic_measurements_on_the_surrogate(tmp_path):
     assert measured["zone_air_temperature_c"].between(-10, 60).all()
 
 
+def test_truth_json_records_the_noise_added_to_every_output_defaults_included(tmp_path):
+    """A truth file without ``noise`` still gets the unit's default noise: the record says so."""
+    import json
+
+    from bpsflow.synth import TRUTH_FILE, Noise, Truth, default_noise, synthesize
+
+    config = _two_day_config(tmp_path, summer=False)
+    own = Noise(kind="absolute", bound=0.3)
+    synthesize(config, Truth(values={}, seed=3, noise={"zone_air_temperature_c": own}),
+               tmp_path / "syn", backend="surrogate")
+    record = json.loads((tmp_path / "syn" / TRUTH_FILE).read_text())
+    assert record["noise"]["zone_air_temperature_c"] == own.model_dump()
+    heating_unit = config.outputs["heating_power_w"].unit
+    assert record["noise"]["heating_power_w"] == default_noise(heating_unit).model_dump()
+    assert "heating_power_w" in record["noise_defaulted"]
+    assert "zone_air_temperature_c" not in record["noise_defaulted"]
+
+
 # Detailed quantities (EnergyPlus output variables by surface and site) -----------
 
 INSIDE = "Surface Inside Face "
