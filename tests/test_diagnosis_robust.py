@@ -290,3 +290,32 @@ def test_energyplus_diagnosis_with_a_fatal_signature_run_writes_its_record(tmp_p
     checked = {p["name"] for p in record["parameter_check"]}
     assert "exterior_wind_curve_min_speed" not in checked
     assert "## Notes" in (out / "diagnosis.md").read_text()
+
+
+def test_a_jump_of_the_output_when_the_candidates_are_added_at_zero_is_noted():
+    """One recovery hour 200 W off (an EnergyPlus HVAC threshold flipped by a token object)
+    is named with its hour; a change within the noise, or none, is not."""
+    from bpsflow.diagnosis.workflow import nesting_note
+
+    rng = np.random.default_rng(0)
+    hours = pd.date_range("2025-03-06 01:00", periods=24 * 20, freq="h")
+    current = 500.0 + 100.0 * np.sin(np.arange(len(hours)) / 24.0 * 2 * np.pi)
+    measured = current + rng.normal(0.0, 5.0, len(hours))
+    calibration = np.arange(len(hours)) < 24 * 15
+    assert nesting_note(measured, current.copy(), current, calibration, hours, "space_w",
+                        3, 1) is None
+    assert nesting_note(measured, current + 0.3, current, calibration, hours, "space_w",
+                        3, 1) is None
+    jumped = current.copy()
+    jumped[150] -= 200.0
+    note = nesting_note(measured, jumped, current, calibration, hours, "space_w", 3, 2)
+    assert note is not None and note.startswith("round 2:")
+    assert str(hours[150]) in note and "space_w" in note and "1 calibration hour(s)" in note
+    jumped_held_out = current.copy()
+    jumped_held_out[-5] -= 200.0                  # the held-out hours are not fitted
+    assert nesting_note(measured, jumped_held_out, current, calibration, hours, "space_w",
+                        3, 1) is None
+    failed = current.copy()
+    failed[:] = np.nan
+    assert "did not run" in nesting_note(measured, failed, current, calibration, hours,
+                                         "space_w", 3, 1)
