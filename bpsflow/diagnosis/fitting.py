@@ -93,6 +93,7 @@ class OutputSimulator:
         self.record = record
         self.calls = 0
         self.failures: dict[int, str] = {}
+        self._model_digest: str | None = None
 
     def to_matrix(self, tidy: pd.DataFrame, labels: list) -> np.ndarray:
         output, timestamps = self.output, self.timestamps
@@ -133,6 +134,25 @@ class OutputSimulator:
             matrix[row] = np.nan
         return matrix
 
+    def _digest(self) -> str:
+        """The run cache's digest of this simulator's model and inputs, made once.
+
+        A simulator's config and files do not change while it is used (each
+        stage of a diagnosis makes its own).
+        """
+        if self._model_digest is None:
+            from bpsflow.boundary import ensure_sequences
+            from bpsflow.simulation import rundir
+            from bpsflow.simulation.ensemble import run_config
+            from bpsflow.simulation.run_cache import model_digest
+
+            # the sequences are part of the key: draw them before the digest
+            rundir.prepare_run_dir(self.sequences_dir)
+            ensure_sequences(run_config(self.config, self.sequences_dir))
+            self._model_digest = model_digest(self.config, self.backend.name,
+                                              self.sequences_dir)
+        return self._model_digest
+
     def _resumable(self, samples: pd.DataFrame) -> np.ndarray:
         """:meth:`_simulate` for the rows not already in the run cache (slow backends only).
 
@@ -140,18 +160,11 @@ class OutputSimulator:
         same command run again after a stop simulates only what it had not
         finished. Failed rows are not stored and run again.
         """
-        from bpsflow.boundary import ensure_sequences
-        from bpsflow.simulation import rundir
-        from bpsflow.simulation.ensemble import run_config
-        from bpsflow.simulation.run_cache import RunCache, model_digest
+        from bpsflow.simulation.run_cache import RunCache
 
-        # the sequences are part of the key: draw them before the first digest
-        rundir.prepare_run_dir(self.sequences_dir)
-        ensure_sequences(run_config(self.config, self.sequences_dir))
         cache = RunCache(self.sequences_dir / "cache")
         values = samples.drop(columns=["instance"], errors="ignore")
-        keys = cache.keys(model_digest(self.config, self.backend.name, self.sequences_dir),
-                          self.output, self.timestamps, values)
+        keys = cache.keys(self._digest(), self.output, self.timestamps, values)
         matrix = np.full((len(samples), len(self.timestamps)), np.nan)
         missing = []
         for row, key in enumerate(keys):

@@ -1629,6 +1629,24 @@ def _screen(context: _Context, union: Config, union_sample: dict, current: Model
     return out, per_trial
 
 
+def _stepped_back(design: np.ndarray, residual: np.ndarray, values: np.ndarray,
+                  ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The residual left after the best bounded linear step of the fitted parameters, and
+    that step (in the parameters' units).
+
+    ``design`` holds each parameter's change of the output per unit (a fit's
+    Jacobian on the same hours as ``residual``); the step keeps every value
+    within ``ranges`` (``(k, 2)``) from ``values``.
+    """
+    from scipy.optimize import lsq_linear
+
+    scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
+    lower = (ranges[:, 0] - values) * scale
+    upper = np.maximum((ranges[:, 1] - values) * scale, lower + 1e-12)
+    step = lsq_linear(design / scale, residual, bounds=(lower, upper)).x
+    return residual - (design / scale) @ step, step / scale
+
+
 def _start_screen(context: _Context, current: Model, union: Config, union_sample: dict,
                   free_sets: list[list[Parameter]], counts: list[int], round_number: int
                   ) -> list[tuple[dict[str, float], float]]:
@@ -1644,8 +1662,6 @@ def _start_screen(context: _Context, current: Model, union: Config, union_sample
     with fewer new parameters, or whose points did not run, gets
     ``({}, inf)``.
     """
-    from scipy.optimize import lsq_linear
-
     from bpsflow.sampling import latin_hypercube_unit
 
     d = context.data
@@ -1673,20 +1689,15 @@ def _start_screen(context: _Context, current: Model, union: Config, union_sample
     label = f"round{round_number}_start_screen"
     context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
     jacobian = current.fit.jacobian[cal]
-    values = current.fit.values
     ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
-    scale = np.maximum(np.abs(jacobian).max(axis=0), 1e-300) if jacobian.size else None
     for (number, point), prediction in zip(owners, predicted):
         if not np.isfinite(prediction[cal]).all():
             continue
         residual = d.y[cal] - prediction[cal]
-        if scale is not None:
+        if jacobian.size:
             # the existing parameters were bent towards the missing effect: a point is
             # judged after their best bounded linear step back (the fit's Jacobian)
-            lower = (ranges[:, 0] - values) * scale
-            upper = np.maximum((ranges[:, 1] - values) * scale, lower + 1e-12)
-            step = lsq_linear(jacobian / scale, residual, bounds=(lower, upper)).x
-            residual = residual - (jacobian / scale) @ step
+            residual, _ = _stepped_back(jacobian, residual, current.fit.values, ranges)
         bic = comparison.bic(residual, counts[number])
         if bic < best[number][1]:
             best[number] = (point, bic)
@@ -2037,7 +2048,6 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     hours whose *effect* fits; the best such blocks are the first step's
     candidates, scored like the edge moves.
     """
-    from scipy.optimize import lsq_linear
 
     d, config = context.data, current.config
     cal = d.calibration
@@ -2056,13 +2066,9 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     def corrected(prediction: np.ndarray, values: np.ndarray,
                   design: np.ndarray | None = None) -> tuple[float, np.ndarray]:
         """RSS after the best bounded linear step of every fitted parameter, and that step."""
-        design = jacobian if design is None else design
-        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
-        lower = (ranges[:, 0] - values) * scale
-        upper = np.maximum((ranges[:, 1] - values) * scale, lower + 1e-12)
-        step = lsq_linear(design / scale, (d.y - prediction)[cal], bounds=(lower, upper)).x
-        left = (d.y - prediction)[cal] - (design / scale) @ step
-        return float(left @ left), step / scale
+        left, step = _stepped_back(jacobian if design is None else design,
+                                   (d.y - prediction)[cal], values, ranges)
+        return float(left @ left), step
 
     def own_design(effect: np.ndarray, level: float) -> np.ndarray:
         """The Jacobian with the block's columns replaced by its own effect per watt."""
