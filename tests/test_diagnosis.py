@@ -490,6 +490,47 @@ def test_fit_many_finds_known_least_squares_optima(surrogate_base):
         assert fit.jacobian[:, 0] == pytest.approx(basis[:, 0], rel=1e-6)
 
 
+def test_a_jacobian_run_only_for_accepted_steps_gives_the_same_fits_for_fewer_runs(
+        surrogate_base):
+    """A curved response (rejected steps happen): the lazy Jacobian must not change a fit.
+
+    Only an accepted trial point's difference neighbours are ever used, so
+    running them after the trial, and only for accepted steps, must give the
+    very same fits while simulating fewer rows.
+    """
+    config = load_config(surrogate_base)
+    parameters = [p for p in config.parameters
+                  if p.name in ("glazing_dirt_correction", "wall_stack_coefficient")]
+    hours = np.arange(300)
+    rng = np.random.default_rng(5)
+    weather = rng.normal(size=(hours.size, 2))
+
+    def response(theta: np.ndarray) -> np.ndarray:
+        return 800.0 + 200.0 * np.exp(2.0 * theta[:, :1] * weather[:, 0]) * \
+            np.cos(theta[:, 1:] * weather[:, 1])
+
+    rows: list[int] = []
+
+    def simulate(samples: pd.DataFrame) -> np.ndarray:
+        rows.append(len(samples))
+        return response(samples[["glazing_dirt_correction",
+                                 "wall_stack_coefficient"]].to_numpy())
+
+    calibration = hours < 200
+    problems = [Problem({p.name: 1.0 for p in config.parameters}, parameters,
+                        response(np.array([truth]))[0] + rng.normal(0, 2.0, hours.size),
+                        calibration) for truth in ([0.75, 1.3], [1.2, 0.6])]
+    eager = fit_many(simulate, problems)
+    eager_rows, eager_calls = sum(rows), len(rows)
+    rows.clear()
+    lazy = fit_many(simulate, problems, jacobian_on_acceptance=True)
+    for one, other in zip(eager, lazy):
+        np.testing.assert_array_equal(one.values, other.values)
+        assert one.iterations == other.iterations and one.objective == other.objective
+        np.testing.assert_array_equal(one.jacobian, other.jacobian)
+    assert sum(rows) < eager_rows and len(rows) > eager_calls
+
+
 def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(surrogate_base):
     """A response periodic in its parameter has many local minima of the squared error.
 

@@ -319,3 +319,40 @@ def test_a_jump_of_the_output_when_the_candidates_are_added_at_zero_is_noted():
     failed[:] = np.nan
     assert "did not run" in nesting_note(measured, failed, current, calibration, hours,
                                          "space_w", 3, 1)
+
+
+def test_a_screen_start_is_fitted_again_only_when_its_own_run_beats_the_first_fit():
+    """One batch runs every promised start; only a start whose BIC is truly lower is kept.
+
+    Known BICs: the outputs are the measured series plus a chosen error, so
+    each point's BIC is the closed form ``n ln(RSS/n) + k ln n``.
+    """
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis import comparison
+    from bpsflow.diagnosis.workflow import _run_checked
+
+    hours = 100
+    rng = np.random.default_rng(2)
+    measured = 500.0 + rng.normal(0, 5.0, hours)
+    calibration = np.arange(hours) < 80
+    small_error, large_error = rng.normal(0, 1.0, hours), rng.normal(0, 20.0, hours)
+    batches: list[pd.DataFrame] = []
+
+    def simulate(samples: pd.DataFrame) -> np.ndarray:
+        batches.append(samples)
+        out = np.array([measured + {1.0: small_error, 2.0: large_error}.get(level, 0.0)
+                        for level in samples["level"]])
+        out[samples["level"].to_numpy() == 3.0] = np.nan        # a run that fails
+        return out
+
+    context = SimpleNamespace(data=SimpleNamespace(y=measured, calibration=calibration),
+                              simulator=lambda config, label: simulate, timings={})
+    reached = comparison.bic(rng.normal(0, 5.0, 80), 3)        # the first fits' end
+    starts = [{"level": 1.0}, {"level": 2.0}, None, {"level": 3.0}]
+    kept = _run_checked(context, None, {"level": 0.0, "other": 7.0}, starts,  # type: ignore
+                        [3, 3, 3, 3], [reached] * 4, round_number=1)
+    assert kept == [{"level": 1.0}, None, None, None]
+    assert len(batches) == 1 and list(batches[0]["level"]) == [1.0, 2.0, 3.0]
+    assert (batches[0]["other"] == 7.0).all()
+    assert "round1_screen_check" in context.timings

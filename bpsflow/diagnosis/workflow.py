@@ -403,8 +403,10 @@ class _Context:
     def fit(self, config: Config, label: str, problems: list[Problem],
             max_iterations: int | None = None) -> list[Fit]:
         started = time.perf_counter()
-        fits = fit_many(self.simulator(config, label), problems,
-                        max_iterations=max_iterations or self.settings.max_fit_iterations)
+        simulate = self.simulator(config, label)
+        fits = fit_many(simulate, problems,
+                        max_iterations=max_iterations or self.settings.max_fit_iterations,
+                        jacobian_on_acceptance=not simulate.backend.vectorised)
         self.timings[label] = self.timings.get(label, 0.0) + time.perf_counter() - started
         for number, fit in enumerate(fits, start=1):
             if fit.failed_trials:
@@ -1291,7 +1293,8 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     # Each cause is fitted from its nesting zero (the fit can only improve on
     # the current model), and again from the screen's linearised optimum when
     # the screen promised a BIC lower by SCREEN_START_MARGIN than the first fit
-    # reached, and from the best point of a small lattice over its new
+    # reached (on EnergyPlus only when one run of that point keeps the
+    # promise), and from the best point of a small lattice over its new
     # parameters when that point alone beats the first fit (_start_screen): an
     # internal mass's area and thickness trade along a long valley that a fit
     # from zero can stall in, and at zero area the linearised screen cannot see
@@ -1316,16 +1319,29 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                             [[] if _is_law(flat[i][0].family) else flat[i][1][1]
                              for i in selected],
                             [len(problem.parameters) for problem in problems], round_number)
+    reached = [np.inf if fit.failed else
+               comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters))
+               for problem, fit in zip(problems, fits)]
+    promised = [{**(problem.start or {}), **screen_starts[i]}
+                if {**(problem.start or {}), **screen_starts[i]} != problem.start
+                and screened[i] < bic_reached - SCREEN_START_MARGIN else None
+                for i, problem, bic_reached in zip(selected, problems, reached)]
+    if not get_backend(context.backend).vectorised:
+        # where every run costs (EnergyPlus), a linearised promise is first checked by
+        # one run of its point, as a lattice point is: a second fit of twenty
+        # iterations from a start that is in fact worse than the first fit's end
+        # costs more runs than the rest of the round
+        promised = _run_checked(context, union, union_sample, promised,
+                                [len(problem.parameters) for problem in problems], reached,
+                                round_number)
     again = []
-    for i, problem, fit, (point, point_bic) in zip(selected, problems, fits, lattice):
-        from_screen = {**(problem.start or {}), **screen_starts[i]}
-        reached = (np.inf if fit.failed else
-                   comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters)))
-        if from_screen != problem.start and screened[i] < reached - SCREEN_START_MARGIN:
+    for i, problem, bic_reached, from_screen, (point, point_bic) in zip(
+            selected, problems, reached, promised, lattice):
+        if from_screen is not None:
             again.append(Problem(union_sample, problem.parameters, d.y, d.calibration,
                                  from_screen))
             flat_fitted.append(flat[i])
-        if point and point_bic < reached - SCREEN_START_MARGIN:
+        if point and point_bic < bic_reached - SCREEN_START_MARGIN:
             again.append(Problem(union_sample, problem.parameters, d.y, d.calibration,
                                  {**(problem.start or {}), **point}))
             flat_fitted.append(flat[i])
@@ -1702,6 +1718,35 @@ def _start_screen(context: _Context, current: Model, union: Config, union_sample
         if bic < best[number][1]:
             best[number] = (point, bic)
     return best
+
+
+def _run_checked(context: _Context, union: Config, union_sample: dict,
+                 starts: list[dict[str, float] | None], counts: list[int],
+                 reached: list[float], round_number: int) -> list[dict[str, float] | None]:
+    """The ``starts`` whose simulated point beats the BIC its fit ``reached``, others None.
+
+    All points run in one batch; a point's BIC counts ``counts`` parameters
+    (its fit's), so it compares with ``reached`` as :func:`_start_screen`'s
+    points do. A point that does not run is dropped.
+    """
+    wanted = [number for number, start in enumerate(starts) if start is not None]
+    if not wanted:
+        return starts
+    d = context.data
+    cal = d.calibration
+    label = f"round{round_number}_screen_check"
+    started = time.perf_counter()
+    predicted = np.asarray(context.simulator(union, label)(pd.DataFrame(
+        [{**union_sample, **(starts[number] or {})} for number in wanted],
+        index=pd.RangeIndex(len(wanted), name="instance"))), dtype=float)
+    context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+    kept: list[dict[str, float] | None] = [None] * len(starts)
+    for number, prediction in zip(wanted, predicted):
+        if np.isfinite(prediction[cal]).all() and comparison.bic(
+                d.y[cal] - prediction[cal], counts[number]) \
+                < reached[number] - SCREEN_START_MARGIN:
+            kept[number] = starts[number]
+    return kept
 
 
 def nesting_note(measured: np.ndarray, at_zero: np.ndarray, current: np.ndarray,
