@@ -174,3 +174,63 @@ def test_linearised_fold_refits_are_exact_for_a_linear_model_and_bounded_for_a_b
                       bounds=(0.0 - fit.values, 10.0 - fit.values)).x
     unbounded = fit.prediction + fit.jacobian @ step
     assert np.sqrt(np.mean((measured - unbounded)[folds == 0] ** 2)) > 3 * own
+
+
+def test_a_current_model_whose_linearised_folds_blow_up_is_refitted_by_simulation():
+    """A Jacobian column 500 times too large in one week (a threshold inside the step).
+
+    The parameter is poorly determined (its standard error spans its range,
+    as a radiant fraction's often does), so the refit's trust region does
+    not hold the step. The current model's linearised fold refits then predict that week
+    wildly, and every candidate would "beat" it; the folds of all models
+    are refitted by simulation instead (here exact least squares, as the
+    model is linear), so the comparison is with the model's honest
+    out-of-fold error. With a sound Jacobian the linearised refit stands.
+    """
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.fitting import Fit
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+    from bpsflow.diagnosis.workflow import Model, _cross_validate
+
+    rng = np.random.default_rng(8)
+    n = len(HOURS)
+    heldout = _heldout()
+    design = np.column_stack([1.0 + rng.random(n), np.sin(np.arange(n) * 2 * np.pi / 24) + 1.5])
+    measured = design @ np.array([4.0, 6.0]) + rng.normal(0, 0.3, n)
+
+    def simulated_fits(config, label, problems, max_iterations=None):
+        fits = []
+        for problem in problems:
+            train = np.asarray(problem.calibration, dtype=bool)
+            values = np.linalg.lstsq(design[train], measured[train], rcond=None)[0]
+            fits.append(Fit(parameters=problem.parameters, values=values,
+                            prediction=design @ values, jacobian=design,
+                            covariance=np.eye(2), residual_std=0.3, objective=0.0,
+                            evaluations=1, seconds=0.0))
+        return fits
+
+    def cross_validate(jacobian: np.ndarray) -> tuple[dict, list[str]]:
+        parameters, fit = _linear_fit(design[~heldout], measured[~heldout], jacobian[~heldout])
+        fit.prediction, fit.jacobian = design @ fit.values, jacobian
+        fit.covariance = np.diag([100.0, 100.0])
+        context = SimpleNamespace(
+            data=SimpleNamespace(y=measured, calibration=~heldout, timestamps=HOURS),
+            settings=DiagnosisSettings(), backend="energyplus", oof_cache={}, notes=[],
+            fit=simulated_fits)
+        current = Model(None, parameters, fit, "current")  # type: ignore[arg-type]
+        out = _cross_validate(context, None, {}, current,  # type: ignore[arg-type]
+                              [(parameters, fit)], round_number=3)
+        return out[0], context.notes
+
+    sound, notes = cross_validate(design)
+    assert sound["refit"] == "linearised" and not notes
+    folds = crossval.day_blocks(HOURS, heldout)
+    corrupted = design.copy()
+    corrupted[folds == 0, 1] *= 500.0
+    redone, notes = cross_validate(corrupted)
+    assert redone["refit"] == "simulated"
+    assert len(notes) == 1 and "times its calibration error" in notes[0]
+    # the honest (exact) out-of-fold error of this well-specified model is its noise
+    assert redone["cvrmse_before"] == pytest.approx(sound["cvrmse_before"], rel=0.05)
+    assert redone["cvrmse_before"] < 0.05

@@ -110,7 +110,10 @@ class DiagnosisSettings(BaseModel):
     (a few Levenberg–Marquardt steps, one batch; the surrogate's default) or
     ``linearised`` (one bounded Gauss–Newton step on the calibration fit's
     Jacobian, at most 3 standard errors per parameter; EnergyPlus's default,
-    as it costs no runs).
+    as it costs no runs). Unset, a linearised refit that the data contradict
+    (a candidate that fits better but predicts its folds worse, or a current
+    model whose out-of-fold error is over 3 times its calibration error) is
+    redone by simulation.
     """
 
     model_config = ConfigDict(extra="forbid")
