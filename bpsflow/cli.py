@@ -122,7 +122,16 @@ def _write_resolved(cfg) -> None:
                       yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
 
 
-RunDirOption = typer.Option(None, "--run-dir", file_okay=False, help="Override execution.run_dir.")
+def _run_dir_text(value: str) -> Path:
+    """``--run-dir``'s value: a blank one is refused (as a path it would mean the current
+    folder, and the command would write its run there)."""
+    if not value.strip():
+        raise typer.BadParameter(f"expected a folder, got {value!r}")
+    return Path(value)
+
+
+RunDirOption = typer.Option(None, "--run-dir", parser=_run_dir_text,
+                            help="Override execution.run_dir.")
 BackendOption = typer.Option(None, help="Override model.backend.")
 JobsOption = typer.Option(None, "--jobs", "-j", help="Parallel processes for the simulations.")
 EngineOption = typer.Option(None, "--engine", help="Override execution.engine: local (processes "

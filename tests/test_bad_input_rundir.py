@@ -325,6 +325,21 @@ def test_a_run_dir_that_is_a_file_is_refused(tmp_path):
     assert_clean_error(nested, str(blocker), "is a file; expected a folder")
 
 
+def test_a_blank_run_dir_option_is_refused_not_read_as_the_current_folder(tmp_path,
+                                                                          monkeypatch):
+    config = write_config(tmp_path, surrogate_raw())
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    for blank in ("", "  "):
+        for command in ("sample", "run"):
+            arguments = ("--run-dir", blank, "--no-progress") if command == "run" \
+                else ("--run-dir", blank)
+            assert_clean_error(invoke(command, config, *arguments), "--run-dir",
+                               "expected a folder")
+    assert not list(work.iterdir())          # nothing written into the current folder
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_a_read_only_run_dir_is_refused(finished, tmp_path):
     config = copy_run(finished, tmp_path)
