@@ -1328,10 +1328,11 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     reached = [np.inf if fit.failed else
                comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters))
                for problem, fit in zip(problems, fits)]
-    promised = [{**(problem.start or {}), **screen_starts[i]}
-                if {**(problem.start or {}), **screen_starts[i]} != problem.start
-                and screened[i] < bic_reached - SCREEN_START_MARGIN else None
-                for i, problem, bic_reached in zip(selected, problems, reached)]
+    promised: list[dict[str, float] | None] = []
+    for i, problem, bic_reached in zip(selected, problems, reached):
+        linearised_optimum = {**(problem.start or {}), **screen_starts[i]}
+        promised.append(linearised_optimum if linearised_optimum != problem.start
+                        and screened[i] < bic_reached - SCREEN_START_MARGIN else None)
     if not get_backend(context.backend).vectorised:
         # where every run costs (EnergyPlus), a linearised promise is first checked by
         # one run of its point, as a lattice point is: a second fit of twenty
