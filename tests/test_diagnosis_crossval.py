@@ -216,8 +216,8 @@ def test_a_current_model_whose_linearised_folds_blow_up_is_refitted_by_simulatio
         fit.covariance = np.diag([100.0, 100.0])
         context = SimpleNamespace(
             data=SimpleNamespace(y=measured, calibration=~heldout, timestamps=HOURS),
-            settings=DiagnosisSettings(), backend="energyplus", oof_cache={}, notes=[],
-            fit=simulated_fits)
+            settings=DiagnosisSettings(), backend="energyplus", vectorised=False, oof_cache={},
+            notes=[], fit=simulated_fits)
         current = Model(None, parameters, fit, "current")  # type: ignore[arg-type]
         out = _cross_validate(context, None, {}, current,  # type: ignore[arg-type]
                               [(parameters, fit)], round_number=3)

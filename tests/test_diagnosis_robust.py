@@ -330,7 +330,7 @@ def test_a_screen_start_is_fitted_again_only_when_its_own_run_beats_the_first_fi
     from types import SimpleNamespace
 
     from bpsflow.diagnosis import comparison
-    from bpsflow.diagnosis.workflow import _run_checked
+    from bpsflow.diagnosis.workflow import _Context, _run_checked
 
     hours = 100
     rng = np.random.default_rng(2)
@@ -348,6 +348,7 @@ def test_a_screen_start_is_fitted_again_only_when_its_own_run_beats_the_first_fi
 
     context = SimpleNamespace(data=SimpleNamespace(y=measured, calibration=calibration),
                               simulator=lambda config, label: simulate, timings={})
+    context.run_rows = lambda *args, **kwargs: _Context.run_rows(context, *args, **kwargs)
     reached = comparison.bic(rng.normal(0, 5.0, 80), 3)        # the first fits' end
     starts = [{"level": 1.0}, {"level": 2.0}, None, {"level": 3.0}]
     kept = _run_checked(context, None, {"level": 0.0, "other": 7.0}, starts,  # type: ignore

@@ -379,6 +379,8 @@ class _Context:
                  jobs: int | None, out_dir: Path, step: Callable[[str], None]):
         self.config, self.data, self.settings = config, data, settings
         self.backend, self.jobs, self.out_dir, self.step = backend, jobs, out_dir, step
+        #: a vectorised backend (the surrogate) pays per call, another (EnergyPlus) per run
+        self.vectorised = get_backend(backend).vectorised
         self.round_number = 0
         #: wall time of each batch of fits (s), by label, for the report
         self.timings: dict[str, float] = {}
@@ -409,10 +411,9 @@ class _Context:
     def fit(self, config: Config, label: str, problems: list[Problem],
             max_iterations: int | None = None) -> list[Fit]:
         started = time.perf_counter()
-        simulate = self.simulator(config, label)
-        fits = fit_many(simulate, problems,
+        fits = fit_many(self.simulator(config, label), problems,
                         max_iterations=max_iterations or self.settings.max_fit_iterations,
-                        jacobian_on_acceptance=not simulate.backend.vectorised)
+                        jacobian_on_acceptance=not self.vectorised)
         self.timings[label] = self.timings.get(label, 0.0) + time.perf_counter() - started
         for number, fit in enumerate(fits, start=1):
             if fit.failed_trials:
@@ -421,6 +422,20 @@ class _Context:
                                   f"first: {_excerpt(fit.failed_trials[0])}")
         self.step(label)
         return fits
+
+    def run_rows(self, config: Config, label: str, rows: list[dict[str, float]],
+                 timing_label: str | None = None) -> np.ndarray:
+        """The output of each row of parameter values, ``(len(rows), n)``, from one batch.
+
+        The batch runs under ``label``; its wall time is added to
+        :attr:`timings` under ``timing_label`` (default ``label``).
+        """
+        started = time.perf_counter()
+        predicted = np.asarray(self.simulator(config, label)(
+            pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance"))), dtype=float)
+        key = timing_label or label
+        self.timings[key] = self.timings.get(key, 0.0) + time.perf_counter() - started
+        return predicted
 
     def block_scores(self, fit: Fit) -> dict:
         d, s = self.data, self.settings
@@ -1321,10 +1336,10 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     fits = context.fit(union, f"round{round_number}", problems)
     # a law's terms are chosen by BIC after its fit (_choose_terms): a random point of
     # every term at once is no start for it
+    counts = [len(problem.parameters) for problem in problems]
     lattice = _start_screen(context, current, union, union_sample,
                             [[] if _is_law(flat[i][0].family) else flat[i][1][1]
-                             for i in selected],
-                            [len(problem.parameters) for problem in problems], round_number)
+                             for i in selected], counts, round_number)
     reached = [np.inf if fit.failed else
                comparison.bic(d.y[cal] - fit.prediction[cal], len(problem.parameters))
                for problem, fit in zip(problems, fits)]
@@ -1333,13 +1348,12 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         linearised_optimum = {**(problem.start or {}), **screen_starts[i]}
         promised.append(linearised_optimum if linearised_optimum != problem.start
                         and screened[i] < bic_reached - SCREEN_START_MARGIN else None)
-    if not get_backend(context.backend).vectorised:
+    if not context.vectorised:
         # where every run costs (EnergyPlus), a linearised promise is first checked by
         # one run of its point, as a lattice point is: a second fit of twenty
         # iterations from a start that is in fact worse than the first fit's end
         # costs more runs than the rest of the round
-        promised = _run_checked(context, union, union_sample, promised,
-                                [len(problem.parameters) for problem in problems], reached,
+        promised = _run_checked(context, union, union_sample, promised, counts, reached,
                                 round_number)
     again = []
     for i, problem, bic_reached, from_screen, (point, point_bic) in zip(
@@ -1706,11 +1720,7 @@ def _start_screen(context: _Context, current: Model, union: Config, union_sample
     best: list[tuple[dict[str, float], float]] = [({}, np.inf) for _ in free_sets]
     if not rows:
         return best
-    started = time.perf_counter()
-    predicted = np.asarray(context.simulator(union, f"round{round_number}_start_screen")(
-        pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance"))), dtype=float)
-    label = f"round{round_number}_start_screen"
-    context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+    predicted = context.run_rows(union, f"round{round_number}_start_screen", rows)
     jacobian = current.fit.jacobian[cal]
     ranges = np.array([parameter_range(p) for p in current.fitted]).reshape(-1, 2)
     for (number, point), prediction in zip(owners, predicted):
@@ -1741,12 +1751,9 @@ def _run_checked(context: _Context, union: Config, union_sample: dict,
         return starts
     d = context.data
     cal = d.calibration
-    label = f"round{round_number}_screen_check"
-    started = time.perf_counter()
-    predicted = np.asarray(context.simulator(union, label)(pd.DataFrame(
-        [{**union_sample, **(starts[number] or {})} for number in wanted],
-        index=pd.RangeIndex(len(wanted), name="instance"))), dtype=float)
-    context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+    predicted = context.run_rows(union, f"round{round_number}_screen_check",
+                                 [{**union_sample, **(starts[number] or {})}
+                                  for number in wanted])
     kept: list[dict[str, float] | None] = [None] * len(starts)
     for number, prediction in zip(wanted, predicted):
         if np.isfinite(prediction[cal]).all() and comparison.bic(
@@ -2006,7 +2013,7 @@ def _cross_validate(context: _Context, union: Config, union_sample: dict, curren
         return {}
     folds = crossval.day_blocks(d.timestamps, ~d.calibration, settings.days_per_fold)
     last = int(folds.max())
-    refit = settings.cv_refit or ("simulated" if get_backend(context.backend).vectorised
+    refit = settings.cv_refit or ("simulated" if context.vectorised
                                   else "linearised")
 
     def out_of_fold(fits: list[tuple[list[Parameter], Fit]], how: str) -> list[np.ndarray]:
@@ -2179,11 +2186,8 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
             row.update({p.name: 0.0 for p in new})          # the block being replaced
             row.update({p.name: level.get(_reported(p), 0.0) for p in added})
             rows.append(row)
-        started = time.perf_counter()
-        predicted = context.simulator(union, f"round{round_number}_edges{step_number}")(
-            pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance")))
-        label = f"round{round_number}_edges"
-        context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
+        predicted = context.run_rows(union, f"round{round_number}_edges{step_number}", rows,
+                                     timing_label=f"round{round_number}_edges")
         scored = []
         level_w = float(state_values[level_column])
         for (variant, added, shape), prediction in zip(variants, predicted):
@@ -2294,12 +2298,7 @@ def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict
     rows = [dict(base_row)]
     for added in pulses:
         rows.append({**base_row, **{q.name: own.get(_reported(q), 0.0) for q in added}})
-    started = time.perf_counter()
-    predicted = context.simulator(union, f"round{round_number}_pulses")(
-        pd.DataFrame(rows, index=pd.RangeIndex(len(rows), name="instance")))
-    label = f"round{round_number}_pulses"
-    context.timings[label] = context.timings.get(label, 0.0) + time.perf_counter() - started
-    runs = np.asarray(predicted, dtype=float)
+    runs = context.run_rows(union, f"round{round_number}_pulses", rows)
     if not np.isfinite(runs).all():
         return [], None
     without = runs[0]
