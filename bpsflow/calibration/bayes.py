@@ -475,11 +475,11 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
     :attr:`Laplace.covariance`) that warm-up goes on adapting.
 
     Chains run ``settings.parallel_chains`` at a time (one XLA device each).
-    By default all at once for small problems (up to 100 observations: each
-    group compiles NumPyro's loops again, ~5 s) and one per core otherwise:
-    measured on 2 cores with 300 observations, 4 devices sharing the 2 cores
-    ran each leapfrog step ~5 times slower than 2 devices did (2.2 times less
-    throughput), and vectorised chains were slower still.
+    By default all at once only for tiny problems (up to 30 observations),
+    where compiling NumPyro's loops again for a second group (each call
+    compiles) costs more than the chains' work; otherwise one per core, since
+    more devices than cores slow every leapfrog step more than a second
+    compilation costs (``bench/results.json``, ``hydronic_nuts_chain_groups``).
 
     Warm-up and sampling run (and are timed) separately; JIT compilation
     counts in the warm-up time. ``timed_warmup=False`` runs both in one call
@@ -534,7 +534,7 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
                      chain_method=label)
 
 
-_SMALL_PROBLEM = 100
+_SMALL_PROBLEM = 30
 
 
 def _cores() -> int:

@@ -123,7 +123,7 @@ class BayesSettings(_Strict):
     error and their posterior is too narrow.
 
     Chains run in parallel, ``parallel_chains`` at a time (default: all of
-    them for up to 100 observations, else one per CPU core).
+    them for up to 30 observations, else one per CPU core).
 
     ``likelihood``: ``exact`` is the Gaussian likelihood of the observations
     given the simulations with full covariances (one ``n × n`` Cholesky per
