@@ -11,6 +11,9 @@
   in all six scenarios on the demo's design runs; the coverage of the 90 % intervals pooled
   over the demo's truth and these (``hydronic_truth_coverage_90_pooled``, goal 0.80-0.98,
   hourly scenarios included).
+* with ``--chain-groups`` (after the demo): NUTS seconds of D-BI and D-EI with the four chains
+  in one group (four XLA devices on the cores) against one group per core, the demo's design
+  and data (``hydronic_nuts_chain_groups``: the ratio per scenario).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import pandas as pd
 from benchlib import record, scratch
 
 ROOT = Path(__file__).resolve().parents[1]
+HYDRONIC_MEASURED = Path("runs") / "hydronic_baseline" / "truth" / "measured.csv"
 
 
 def energyplus_seconds(first: str, last: str, repeats: int = 3) -> float:
@@ -147,11 +151,49 @@ def record_pooled(folders: list[Path]) -> None:
                          for s, r in by_scenario.iterrows()})
 
 
+def nuts_seconds(scenario_name: str, parallel_chains: int) -> tuple[float, float]:
+    """NUTS seconds and steps per iteration of one demo scenario with chains grouped so."""
+    from bpsflow.calibration import bayes, workflow
+    from bpsflow.config import load_config
+    from bpsflow.measured import read_measured
+
+    config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
+    settings = workflow.settings_of(config)
+    settings.bayes = settings.bayes.model_copy(update={"parallel_chains": parallel_chains})
+    bayes.configure_jax(settings.bayes.chains)
+    scenario = next(s for s in settings.scenarios if s.name == scenario_name)
+    measured_path = ROOT / HYDRONIC_MEASURED
+    measured = read_measured(measured_path, config).frame
+    design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"
+                                     / "calibration" / "design", "energyplus", 2, False)
+    run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
+                                      measured_path, "bayes", scratch("nuts-"), 2,
+                                      show_progress=False, physical_check=False)
+    return run.timings["mcmc_seconds"], float(run.posterior.num_steps.mean())
+
+
+def chain_groups() -> None:
+    ratios, seconds = {}, {}
+    for name in ("D-BI", "D-EI"):
+        grouped, steps_grouped = nuts_seconds(name, 2)
+        together, steps_together = nuts_seconds(name, 4)
+        ratios[name] = grouped / together
+        seconds[name] = {"one_group_per_core_s": grouped, "all_chains_at_once_s": together,
+                         "steps_per_iteration": [steps_grouped, steps_together]}
+    record("hydronic_nuts_chain_groups", ratios["D-BI"], "ratio",
+           "< 1 above 30 observations (D-BI, 76), > 1 below (D-EI, 20)",
+           "python bench/hydronic_bench.py --chain-groups --skip-timing", per_scenario=ratios,
+           seconds=seconds, note="NUTS seconds with two groups of two chains / four chains at "
+           "once, 2 cores, the demo's design and data")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--demo", action="store_true", help="also time make hydronic-demo")
     parser.add_argument("--truths", type=int, default=0,
                         help="pool truth coverage over this many truths (after the demo)")
+    parser.add_argument("--chain-groups", action="store_true",
+                        help="time NUTS with chains grouped per core vs all at once")
     parser.add_argument("--skip-timing", action="store_true", help="no EnergyPlus timings")
     args = parser.parse_args()
     command = "python bench/hydronic_bench.py"
@@ -165,6 +207,8 @@ def main() -> None:
     if args.truths > 1:
         extra = [calibrate_truth(seed) for seed in range(2, args.truths + 1)]
         record_pooled([ROOT / "runs" / "hydronic_screened" / "calibration"] + extra)
+    if args.chain_groups:
+        chain_groups()
 
 
 if __name__ == "__main__":

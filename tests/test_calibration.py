@@ -475,3 +475,66 @@ def test_lowrank_likelihood_with_every_observation_inducing_is_the_exact_gaussia
     expected += stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf(-1.2)
     expected += stats.norm(*priors["log_noise_std"]).logpdf(np.log([0.05, 0.4])).sum()
     assert float(value) == pytest.approx(expected, rel=1e-4)
+
+
+@pytest.mark.parametrize("likelihood", ["exact", "lowrank"])
+def test_per_output_discrepancy_scales_each_outputs_rows_of_one_correlation(likelihood):
+    """With ``discrepancy_per_output`` δ's covariance is ``S K S`` with ``S`` each row's own
+    output's σ_δ (one correlation ``K``, one scale per output): the model's log density equals
+    a hand-built Gaussian, for the exact likelihood and for the low-rank one with every
+    observation inducing (where FITC is exact)."""
+    from numpyro.infer.util import log_density
+
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=10)
+    obs_rows = np.arange(10)
+    groups = np.array([0, 1] * 5)
+    y = np.random.default_rng(5).normal(size=10)
+    settings = BayesSettings(noise_per_output=True, discrepancy_per_output=True,
+                             likelihood=likelihood, inducing_points=10)
+    data = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1), settings,
+                          obs_outputs=groups)
+    assert (data.n_discrepancy, data.n_noise) == (2, 2)
+    sd_delta, sd_eps = np.array([0.01, 0.6]), np.array([0.05, 0.2])
+    point = {"z": np.array([0.2]), "log_discrepancy_std": np.log(sd_delta),
+             "log_discrepancy_lengthscale": np.array([-0.5]), "log_noise_std": np.log(sd_eps)}
+    lowrank = likelihood == "lowrank"
+    model = bayes.make_model(False, data.priors, lowrank, n_noise=2, n_discrepancy=2)
+    value, _ = log_density(model, (bayes.model_arrays(data),), {}, point)
+    t = standardise_unit(special.ndtr(point["z"]))
+    mean = emulator.grid.predict_mean(t[None, :])[0, obs_rows]
+    cov = emulator.grid.predict_cov(t)[np.ix_(obs_rows, obs_rows)]
+    if lowrank:
+        cov = np.diag(np.diag(cov))
+    xs = emulator.grid.x[obs_rows]
+    d2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(-1)
+    scale = sd_delta[groups]
+    cov = cov + np.outer(scale, scale) * np.exp(-0.5 * d2 / np.exp(-0.5) ** 2) \
+        + np.diag(sd_eps[groups] ** 2 + 1e-8)
+    expected = stats.multivariate_normal(mean, cov).logpdf(y)
+    priors = data.priors
+    expected += stats.norm(0, 1).logpdf(0.2)
+    expected += stats.norm(*priors["log_discrepancy_std"]).logpdf(np.log(sd_delta)).sum()
+    expected += stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf(-0.5)
+    expected += stats.norm(*priors["log_noise_std"]).logpdf(np.log(sd_eps)).sum()
+    assert float(value) == pytest.approx(expected, rel=1e-4)
+    # a shared σ_δ (the default) is a different density at the same point
+    shared = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1),
+                            settings.model_copy(update={"discrepancy_per_output": False}),
+                            obs_outputs=groups)
+    assert shared.n_discrepancy == 1
+
+
+def test_predictive_discrepancy_takes_each_rows_own_output_scale():
+    """In the posterior predictive, δ of an output whose σ_δ is near zero is near zero, while
+    the other output's δ carries the residual; one shared scale would give both the same."""
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=12)
+    groups = np.array([0, 1] * 6)
+    obs_rows, target_rows = np.arange(8), np.arange(8, 12)
+    y = emulator.grid.predict_mean(standardise_unit(np.array([[0.5]])))[0, obs_rows] + 0.4
+    prediction = bayes.predictive(
+        emulator.grid, obs_rows, target_rows, y, np.array([[0.5]]),
+        log_sd_delta=np.log(np.array([[1e-4, 0.5]])), log_lengthscale=np.array([[0.5]]),
+        log_sd_eps=np.log(np.array([[0.05, 0.05]])), ard=False, noise_index=groups)
+    delta = prediction.discrepancy[0]
+    assert np.all(np.abs(delta[groups[target_rows] == 0]) < 1e-3)
+    assert np.all(delta[groups[target_rows] == 1] > 0.1)

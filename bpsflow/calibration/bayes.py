@@ -100,6 +100,8 @@ class KohData:
     extra_variance: np.ndarray | None = None  # (n,) known error variance (emulator error)
     noise_index: np.ndarray | None = None     # (n,) each observation's σ_ε (per-output noise)
     n_noise: int = 1                          # how many σ_ε: 1 shared, else one per output
+    output_index: np.ndarray | None = None    # (n,) each observation's output (position)
+    n_discrepancy: int = 1                    # how many σ_δ: 1 shared, else one per output
 
 
 def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
@@ -110,7 +112,8 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
     ``extra_variance`` (per observation, standardised) is a known error
     variance added to σ_ε² (the emulator's hold-out error). ``obs_outputs``
     (per observation, the output's position) gives each output its own σ_ε
-    when ``settings.noise_per_output`` is set.
+    when ``settings.noise_per_output`` is set, and its own δ scale σ_δ when
+    ``settings.discrepancy_per_output`` is.
     """
     active = np.asarray(active, dtype=int)
     screened = np.setdiff1d(np.arange(grid.t.shape[1]), active)
@@ -137,14 +140,18 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
                    ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing,
                    extra_variance=None if extra_variance is None
                    else np.asarray(extra_variance, dtype=float),
-                   **_noise_groups(settings, obs_outputs, len(obs_rows)))
+                   **_output_groups(settings, obs_outputs, len(obs_rows)))
 
 
-def _noise_groups(settings: BayesSettings, obs_outputs: np.ndarray | None, n: int) -> dict:
-    if not settings.noise_per_output or obs_outputs is None:
-        return {"noise_index": np.zeros(n, dtype=int), "n_noise": 1}
-    codes = np.asarray(obs_outputs, dtype=int)
-    return {"noise_index": codes, "n_noise": int(codes.max()) + 1}
+def _output_groups(settings: BayesSettings, obs_outputs: np.ndarray | None, n: int) -> dict:
+    """Which σ_ε and σ_δ each observation takes: one shared, or its output's own."""
+    codes = np.zeros(n, dtype=int) if obs_outputs is None else np.asarray(obs_outputs, dtype=int)
+    count = int(codes.max()) + 1 if n else 1
+    own_noise = settings.noise_per_output and count > 1
+    own_delta = settings.discrepancy_per_output and count > 1
+    return {"noise_index": codes if own_noise else np.zeros(n, dtype=int),
+            "n_noise": count if own_noise else 1, "output_index": codes,
+            "n_discrepancy": count if own_delta else 1}
 
 
 def inducing_inputs(x: np.ndarray, count: int, random_state: int) -> np.ndarray:
@@ -249,13 +256,15 @@ def _cross_kernel(a, b, log_lengthscale, ard: bool):
 
 
 def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, ard: bool):
-    """``log N(residual; 0, D + σ_δ² (Q + diag(1 - q)))`` with δ's FITC covariance (JAX).
+    """``log N(residual; 0, D + S (Q + diag(1 - q)) S)`` with δ's FITC covariance (JAX).
 
     δ's kernel is replaced by its Nyström approximation on ``m`` inducing
     inputs ``Q = K_nm K_mm⁻¹ K_mn`` with the exact variances restored on the
     diagonal (FITC, Snelson & Ghahramani 2006); ``diagonal`` carries the
     emulator's variances and the noise. Woodbury's identity makes a step
-    ``O(n m²)`` instead of ``O(n³)``.
+    ``O(n m²)`` instead of ``O(n³)``. ``sd_delta`` is δ's standard deviation,
+    a scalar or one per observation (``S = diag(sd_delta)``: each output's own
+    scale on a shared correlation).
     """
     import jax.numpy as jnp
     from jax.scipy.linalg import solve_triangular
@@ -278,11 +287,13 @@ def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, 
 
 
 def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool = False,
-               n_noise: int = 1):
+               n_noise: int = 1, n_discrepancy: int = 1):
     """The NumPyro model of seed eq. 19–22 (see the module docstring).
 
-    ``ard``, the priors and the number of σ_ε (``n_noise``: 1 shared, or one
-    per output) are fixed in the closure; the arrays (the data and the
+    ``ard``, the priors, the number of σ_ε (``n_noise``: 1 shared, or one per
+    output) and of σ_δ (``n_discrepancy``: 1 shared, or one per output, each
+    scaling the output's rows and columns of δ's correlation) are fixed in
+    the closure; the arrays (the data and the
     factorised simulator block) are the model's argument, so JAX compiles
     once for any data of the same shape.
     """
@@ -294,7 +305,13 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
         k = d["t_scaled"].shape[1]
         z = numpyro.sample("z", dist.Normal(0.0, 1.0).expand([k]).to_event(1))
         m, s = priors["log_discrepancy_std"]
-        log_sd_delta = numpyro.sample("log_discrepancy_std", dist.Normal(m, s))
+        if n_discrepancy == 1:
+            log_sd_delta = numpyro.sample("log_discrepancy_std", dist.Normal(m, s))
+            sd_delta = jnp.exp(log_sd_delta) * jnp.ones_like(d["y"])
+        else:
+            log_sd_delta = numpyro.sample("log_discrepancy_std",
+                                          dist.Normal(m, s).expand([n_discrepancy]).to_event(1))
+            sd_delta = jnp.exp(log_sd_delta)[d["output_index"]]
         m, s = priors["log_discrepancy_lengthscale"]
         n_ls = d["x_obs"].shape[1] if ard else 1
         log_ls = numpyro.sample("log_discrepancy_lengthscale",
@@ -311,10 +328,10 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
             mean, variance = _emulator_moments(z, d, full=False)
             numpyro.factor("y", lowrank_log_density(
                 d["y"] - mean, variance + noise_variance + d["extra_variance"],
-                jnp.exp(log_sd_delta), log_ls, d, ard))
+                sd_delta, log_ls, d, ard))
             return
         mean, cov = _emulator_moments(z, d)
-        total = (cov + jnp.exp(2 * log_sd_delta) * _discrepancy_kernel(log_ls, d, ard)
+        total = (cov + sd_delta[:, None] * sd_delta[None, :] * _discrepancy_kernel(log_ls, d, ard)
                  + jnp.diag(d["extra_variance"])
                  + jnp.diag(noise_variance + _JITTER))
         numpyro.factor("y", gaussian_log_density(total, d["y"] - mean))
@@ -342,6 +359,8 @@ def model_arrays(data: KohData) -> dict:
             else data.extra_variance,
             "noise_index": np.zeros(len(data.y), dtype=int) if data.noise_index is None
             else data.noise_index,
+            "output_index": np.zeros(len(data.y), dtype=int) if data.output_index is None
+            else data.output_index,
             # the emulator's mean and variances at the observations as products with the
             # θ-side vector only (the low-rank likelihood's variances: the diagonal of C_η)
             "obs_mean_weights": np.ascontiguousarray(data.ux_obs @ data.mean_weights.T),
@@ -388,7 +407,9 @@ def initial_values(data: KohData, z_start: np.ndarray | None, chains: int,
               else np.clip(np.asarray(z_start)[data.active], -2.5, 2.5))
     n_ls = data.x_obs.shape[1] if data.ard else 1
     out = {"z": centre[None, :] + spread * rng.standard_normal((chains, k))}
-    for name, size in (("log_discrepancy_std", None), ("log_discrepancy_lengthscale", n_ls),
+    for name, size in (("log_discrepancy_std",
+                        None if data.n_discrepancy == 1 else data.n_discrepancy),
+                       ("log_discrepancy_lengthscale", n_ls),
                        ("log_noise_std", None if data.n_noise == 1 else data.n_noise)):
         mean, sd = data.priors[name]
         shape = (chains,) if size is None else (chains, size)
@@ -423,7 +444,7 @@ def laplace(data: KohData, start: dict[str, np.ndarray]) -> Laplace:
 
     started = time.perf_counter()
     arrays = model_arrays(data)
-    model = make_model(data.ard, data.priors, data.lowrank, data.n_noise)
+    model = make_model(data.ard, data.priors, data.lowrank, data.n_noise, data.n_discrepancy)
     flat0, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
 
     def energy(flat):
@@ -510,7 +531,8 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
         size = min(group, chains - first)
         part_settings = settings.model_copy(update={"chains": size})
         mcmc = _mcmc(data.ard, priors, data.lowrank, part_settings,
-                     method if size > 1 else "sequential", progress, mass, data.n_noise)
+                     method if size > 1 else "sequential", progress, mass, data.n_noise,
+                     data.n_discrepancy)
         part_init = None if init is None else {k: np.asarray(v)[first:first + size]
                                                for k, v in init.items()}
         if part_init is not None and size == 1:   # NumPyro takes one chain's start unbatched
@@ -576,7 +598,8 @@ _JIT_MODEL_ARGS = True
 
 
 def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, method: str,
-          progress: bool, inverse_mass_matrix: np.ndarray | None, n_noise: int = 1):
+          progress: bool, inverse_mass_matrix: np.ndarray | None, n_noise: int = 1,
+          n_discrepancy: int = 1):
     """A NumPyro MCMC object; reused for the same model and settings without a mass matrix.
 
     The model's arrays are arguments (``jit_model_args``), so a reused object
@@ -587,10 +610,11 @@ def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, meth
 
     key = (ard, priors, lowrank, settings.chains, settings.warmup, settings.samples,
            settings.target_accept, settings.dense_mass, settings.max_tree_depth, method, progress,
-           n_noise)
+           n_noise, n_discrepancy)
     if inverse_mass_matrix is None and key in _MCMC_CACHE:
         return _MCMC_CACHE[key]
-    kernel = NUTS(make_model(ard, dict(priors), lowrank, n_noise), target_accept_prob=settings.target_accept,
+    kernel = NUTS(make_model(ard, dict(priors), lowrank, n_noise, n_discrepancy),
+                  target_accept_prob=settings.target_accept,
                   dense_mass=settings.dense_mass, max_tree_depth=settings.max_tree_depth,
                   inverse_mass_matrix=inverse_mass_matrix)
     mcmc = MCMC(kernel, num_warmup=max(settings.warmup, 1), num_samples=settings.samples,
@@ -761,8 +785,9 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
     FITC approximation and the emulator keeps only its variances.
     ``extra_variance`` (per grid row, standardised) is the known error
     variance of the likelihood (the emulator's hold-out error). With one σ_ε
-    per output, ``log_sd_eps`` has a column per output and ``noise_index``
-    (per grid row) says which is the row's.
+    (σ_δ) per output, ``log_sd_eps`` (``log_sd_delta``) has a column per
+    output and ``noise_index`` (per grid row: the row's output) says which is
+    the row's.
     """
     rng = np.random.default_rng(random_state)
     rows = np.concatenate([obs_rows, target_rows])
@@ -775,14 +800,17 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
         cov_eta = grid.predict_cov(t_all[i])[np.ix_(rows, rows)]
         ls = np.exp(np.atleast_1d(log_lengthscale[i]))
         ls = ls if ard else ls[0]
-        k_delta = np.exp(2 * log_sd_delta[i]) * _se(x, x, ls)
+        sd_delta = np.exp(np.atleast_1d(log_sd_delta[i]))
+        sd_delta = sd_delta[noise_index[rows]] if noise_index is not None and len(sd_delta) > 1 \
+            else np.full(len(rows), sd_delta[0])
+        scale = np.outer(sd_delta, sd_delta)
+        k_delta = scale * _se(x, x, ls)
         if x_inducing is not None:
             cov_eta = np.diag(np.diag(cov_eta))
             k_mm = _se(x_inducing, x_inducing, ls) + 1e-6 * np.eye(len(x_inducing))
             k_nm = _se(x, x_inducing, ls)
             nystrom = k_nm @ np.linalg.solve(k_mm, k_nm.T)
-            k_delta = np.exp(2 * log_sd_delta[i]) * (
-                nystrom + np.diag(np.clip(1.0 - np.diag(nystrom), 0.0, None)))
+            k_delta = scale * (nystrom + np.diag(np.clip(1.0 - np.diag(nystrom), 0.0, None)))
         extra = np.zeros(len(rows)) if extra_variance is None else extra_variance[rows]
         sd_eps = np.atleast_1d(log_sd_eps[i])
         own = sd_eps[noise_index[rows]] if noise_index is not None and len(sd_eps) > 1 \

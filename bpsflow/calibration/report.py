@@ -218,7 +218,10 @@ def posterior_frame(run: CalibrationRun) -> pd.DataFrame:
     frame.insert(0, "draw", np.tile(np.arange(samples), chains))
     frame.insert(0, "chain", np.repeat(np.arange(chains), samples))
     flat = flat_draws(post)
-    frame["discrepancy_std"] = np.exp(flat["log_discrepancy_std"])
+    delta = np.exp(flat["log_discrepancy_std"])
+    own_delta = delta.ndim == 2
+    if not own_delta:
+        frame["discrepancy_std"] = delta
     lengthscales = np.exp(flat["log_discrepancy_lengthscale"])
     names = run.emulator.scaling.x_columns if run.koh.ard else ["shared"]
     for i, name in enumerate(names):
@@ -229,7 +232,7 @@ def posterior_frame(run: CalibrationRun) -> pd.DataFrame:
         frame["noise_std"] = noise
     for i, output in enumerate(run.emulator.scaling.outputs):
         scale = run.emulator.scaling.y_std[i]
-        frame[f"discrepancy_std_{output}"] = frame["discrepancy_std"] * scale
+        frame[f"discrepancy_std_{output}"] = (delta[:, i] if own_delta else delta) * scale
         frame[f"noise_std_{output}"] = (noise[:, i] if own else noise) * scale
     frame["diverging"] = post.diverging.reshape(-1)
     return frame

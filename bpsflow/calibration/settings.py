@@ -116,6 +116,13 @@ class BayesSettings(_Strict):
     that the most precise output pulls down, and the others' residuals are
     then explained by θ.
 
+    ``discrepancy_per_output: true`` gives each pooled output its own δ
+    scale σ_δ (same prior) on δ's shared correlation: a meter the model
+    reproduces closely (electricity summed from load densities) otherwise
+    pulls the one σ_δ towards zero, and the other outputs' model-form error is
+    then read as white noise, which pins θ far too tightly at hourly
+    resolution.
+
     ``emulator_error: holdout`` adds the emulator's mean squared error on the
     held-out runs (per output, standardised) to every observation's variance:
     the GP's own conditional variance is far smaller than its error on new
@@ -156,6 +163,7 @@ class BayesSettings(_Strict):
     noise_std: LogNormalPrior = Field(default_factory=lambda: LogNormalPrior(median=0.05))
     ard: bool = False
     noise_per_output: bool = False
+    discrepancy_per_output: bool = False
     emulator_error: Literal["holdout", "none"] = "holdout"
     likelihood: Literal["auto", "exact", "lowrank"] = "auto"
     exact_max_observations: int = Field(default=150, ge=1)
