@@ -1,0 +1,95 @@
+"""Truth coverage of the hydronic floor's posteriors, over several truths, posterior only.
+
+Runs after ``make hydronic-demo`` (it reuses the demo's screened config and design runs).
+For the demo's truth and truths 2, 3, ... (drawn as ``hydronic_bench.py --truths`` draws
+them, synthesised on the room-by-room floor), each chosen scenario is calibrated without
+the physical re-runs (they do not change the posterior intervals), and the share of the
+calibration parameters whose 90 % interval holds the equivalent truth is recorded:
+``hydronic_truth_coverage_90_scenarios`` (goal 0.80-0.98).
+
+    python bench/hydronic_coverage.py --truths 3 --scenarios H-BI,H-UI,H-EI
+    python bench/hydronic_coverage.py --truths 3 --scenarios H-UI --set discrepancy_per_output=false
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from hydronic_bench import HYDRONIC_MEASURED, ROOT, draw_truth
+
+from benchlib import record, scratch
+
+
+def truth_data(seed: int) -> tuple[Path, Path]:
+    """Measured file and equivalent truth of truth ``seed`` (1: the demo's), synthesised once."""
+    if seed == 1:
+        folder = ROOT / HYDRONIC_MEASURED.parent
+    else:
+        work = ROOT / "runs" / "hydronic_truths" / f"seed{seed}"
+        folder = work / "data"
+        if not (folder / "truth_equivalent.json").is_file():
+            truth = draw_truth(seed, work / "truth.yaml")
+            subprocess.run([str(ROOT / ".venv" / "bin" / "bpsflow"), "synth",
+                            "configs/hydronic_baseline.yaml", "--truth", str(truth),
+                            "--equivalent-for", "configs/hydronic.yaml", "--out", str(folder),
+                            "--no-progress"], cwd=ROOT, check=True)
+    return folder / "measured.csv", folder / "truth_equivalent.json"
+
+
+def coverage(seed: int, names: list[str], overrides: dict) -> dict[str, list[bool]]:
+    """Per scenario: whether each calibration parameter's 90 % interval holds its truth."""
+    from bpsflow.calibration import bayes, workflow
+    from bpsflow.calibration.design import unit_to_values
+    from bpsflow.config import load_config
+    from bpsflow.measured import read_measured
+
+    config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
+    settings = workflow.settings_of(config)
+    settings.bayes = settings.bayes.model_copy(update=overrides)
+    bayes.configure_jax(settings.bayes.chains)
+    measured_path, truth_path = truth_data(seed)
+    measured = read_measured(measured_path, config).frame
+    design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"
+                                     / "calibration" / "design", "energyplus", 2, False)
+    truth = workflow.read_truth(truth_path, design.parameters)
+    out: dict[str, list[bool]] = {}
+    for scenario in [s for s in settings.scenarios if s.name in names]:
+        run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
+                                          measured_path, "bayes", scratch("coverage-"), 2,
+                                          truth, show_progress=False, physical_check=False)
+        values = unit_to_values(run.unit_draws, run.parameters)
+        low, high = np.quantile(values, [0.05, 0.95], axis=0)
+        out[scenario.name] = [bool(low[j] <= truth[p.name] <= high[j])
+                              for j, p in enumerate(run.parameters)]
+        print(f"truth {seed} {scenario.name}: {sum(out[scenario.name])}/{len(run.parameters)}",
+              flush=True)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--truths", type=int, default=3)
+    parser.add_argument("--scenarios", default="H-BI,H-UI,H-EI")
+    parser.add_argument("--set", action="append", default=[],
+                        help="calibration.bayes override, key=JSON value")
+    args = parser.parse_args()
+    names = args.scenarios.split(",")
+    overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
+    per_truth = {seed: coverage(seed, names, overrides) for seed in range(1, args.truths + 1)}
+    covered = sum(sum(v) for t in per_truth.values() for v in t.values())
+    total = sum(len(v) for t in per_truth.values() for v in t.values())
+    command = f"python bench/hydronic_coverage.py --truths {args.truths} --scenarios " \
+        f"{args.scenarios}" + "".join(f" --set {item}" for item in args.set)
+    record("hydronic_truth_coverage_90_scenarios", covered / total, "share", "0.80-0.98",
+           command, truths=args.truths, overrides=overrides,
+           per_truth={str(seed): {name: f"{sum(v)}/{len(v)}" for name, v in t.items()}
+                      for seed, t in per_truth.items()},
+           note="posterior intervals only (no physical re-runs), the demo's design runs")
+
+
+if __name__ == "__main__":
+    main()
