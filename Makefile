@@ -58,7 +58,8 @@ bench: $(STAMP)
 	$(PY) bench/diagnosis_bench.py --random 60 --nulls 40 --parallel $(JOBS)
 	$(PY) bench/diagnosis_bench.py --random 12 --nulls 0 --backends energyplus --jobs $(JOBS)
 	$(PY) bench/study_bench.py --jobs $(JOBS)   # about 30 min
-	$(PY) bench/hydronic_bench.py --demo   # about 25 min
+	$(PY) bench/hydronic_bench.py --demo --chain-groups   # about an hour
+	$(PY) bench/hydronic_coverage.py --truths 3   # hourly scenarios, about 45 min
 	@echo "figures written to bench/results.json"
 
 # The Table 3.5-style validation study (seed §3.5-3.6): the baseline ensemble, detailed
