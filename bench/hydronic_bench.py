@@ -151,24 +151,34 @@ def record_pooled(folders: list[Path]) -> None:
                          for s, r in by_scenario.iterrows()})
 
 
-def nuts_seconds(scenario_name: str, parallel_chains: int) -> tuple[float, float]:
-    """NUTS seconds and steps per iteration of one demo scenario with chains grouped so."""
+def posterior_runs(names: list[str], overrides: dict, measured_path: Path,
+                   truth_path: Path | None = None):
+    """Calibrate the demo's scenarios ``names`` on its design, posterior only (no re-runs).
+
+    ``overrides`` replace ``calibration.bayes`` settings; yields each scenario's run.
+    """
     from bpsflow.calibration import bayes, workflow
     from bpsflow.config import load_config
     from bpsflow.measured import read_measured
 
     config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
     settings = workflow.settings_of(config)
-    settings.bayes = settings.bayes.model_copy(update={"parallel_chains": parallel_chains})
+    settings.bayes = settings.bayes.model_copy(update=overrides)
     bayes.configure_jax(settings.bayes.chains)
-    scenario = next(s for s in settings.scenarios if s.name == scenario_name)
-    measured_path = ROOT / HYDRONIC_MEASURED
     measured = read_measured(measured_path, config).frame
     design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"
                                      / "calibration" / "design", "energyplus", 2, False)
-    run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
-                                      measured_path, "bayes", scratch("nuts-"), 2,
-                                      show_progress=False, physical_check=False)
+    truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None
+    for scenario in [s for s in settings.scenarios if s.name in names]:
+        yield workflow.calibrate_scenario(config, settings, scenario, design, measured,
+                                          measured_path, "bayes", scratch("posterior-"), 2,
+                                          truth, show_progress=False, physical_check=False)
+
+
+def nuts_seconds(scenario_name: str, parallel_chains: int) -> tuple[float, float]:
+    """NUTS seconds and steps per iteration of one demo scenario with chains grouped so."""
+    run = next(posterior_runs([scenario_name], {"parallel_chains": parallel_chains},
+                              ROOT / HYDRONIC_MEASURED))
     return run.timings["mcmc_seconds"], float(run.posterior.num_steps.mean())
 
 

@@ -19,9 +19,9 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from hydronic_bench import HYDRONIC_MEASURED, ROOT, draw_truth
+from hydronic_bench import HYDRONIC_MEASURED, ROOT, draw_truth, posterior_runs
 
-from benchlib import record, scratch
+from benchlib import record
 
 
 def truth_data(seed: int) -> tuple[Path, Path]:
@@ -42,31 +42,17 @@ def truth_data(seed: int) -> tuple[Path, Path]:
 
 def coverage(seed: int, names: list[str], overrides: dict) -> dict[str, list[bool]]:
     """Per scenario: whether each calibration parameter's 90 % interval holds its truth."""
-    from bpsflow.calibration import bayes, workflow
     from bpsflow.calibration.design import unit_to_values
-    from bpsflow.config import load_config
-    from bpsflow.measured import read_measured
 
-    config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
-    settings = workflow.settings_of(config)
-    settings.bayes = settings.bayes.model_copy(update=overrides)
-    bayes.configure_jax(settings.bayes.chains)
     measured_path, truth_path = truth_data(seed)
-    measured = read_measured(measured_path, config).frame
-    design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"
-                                     / "calibration" / "design", "energyplus", 2, False)
-    truth = workflow.read_truth(truth_path, design.parameters)
     out: dict[str, list[bool]] = {}
-    for scenario in [s for s in settings.scenarios if s.name in names]:
-        run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
-                                          measured_path, "bayes", scratch("coverage-"), 2,
-                                          truth, show_progress=False, physical_check=False)
+    for run in posterior_runs(names, overrides, measured_path, truth_path):
         values = unit_to_values(run.unit_draws, run.parameters)
         low, high = np.quantile(values, [0.05, 0.95], axis=0)
-        out[scenario.name] = [bool(low[j] <= truth[p.name] <= high[j])
-                              for j, p in enumerate(run.parameters)]
-        print(f"truth {seed} {scenario.name}: {sum(out[scenario.name])}/{len(run.parameters)}",
-              flush=True)
+        out[run.scenario.name] = [bool(low[j] <= run.truth[p.name] <= high[j])
+                                  for j, p in enumerate(run.parameters)]
+        print(f"truth {seed} {run.scenario.name}: {sum(out[run.scenario.name])}/"
+              f"{len(run.parameters)}", flush=True)
     return out
 
 

@@ -307,7 +307,7 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
         m, s = priors["log_discrepancy_std"]
         if n_discrepancy == 1:
             log_sd_delta = numpyro.sample("log_discrepancy_std", dist.Normal(m, s))
-            sd_delta = jnp.exp(log_sd_delta) * jnp.ones_like(d["y"])
+            sd_delta = jnp.exp(log_sd_delta)[None]     # (1,): broadcasts over the rows
         else:
             log_sd_delta = numpyro.sample("log_discrepancy_std",
                                           dist.Normal(m, s).expand([n_discrepancy]).to_event(1))
@@ -800,21 +800,18 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
         cov_eta = grid.predict_cov(t_all[i])[np.ix_(rows, rows)]
         ls = np.exp(np.atleast_1d(log_lengthscale[i]))
         ls = ls if ard else ls[0]
-        sd_delta = np.exp(np.atleast_1d(log_sd_delta[i]))
-        sd_delta = sd_delta[noise_index[rows]] if noise_index is not None and len(sd_delta) > 1 \
-            else np.full(len(rows), sd_delta[0])
+        sd_delta = np.exp(_per_row(log_sd_delta[i], noise_index, rows))
         scale = np.outer(sd_delta, sd_delta)
-        k_delta = scale * _se(x, x, ls)
         if x_inducing is not None:
             cov_eta = np.diag(np.diag(cov_eta))
             k_mm = _se(x_inducing, x_inducing, ls) + 1e-6 * np.eye(len(x_inducing))
             k_nm = _se(x, x_inducing, ls)
             nystrom = k_nm @ np.linalg.solve(k_mm, k_nm.T)
             k_delta = scale * (nystrom + np.diag(np.clip(1.0 - np.diag(nystrom), 0.0, None)))
+        else:
+            k_delta = scale * _se(x, x, ls)
         extra = np.zeros(len(rows)) if extra_variance is None else extra_variance[rows]
-        sd_eps = np.atleast_1d(log_sd_eps[i])
-        own = sd_eps[noise_index[rows]] if noise_index is not None and len(sd_eps) > 1 \
-            else sd_eps[0]
+        own = _per_row(log_sd_eps[i], noise_index, rows)
         noise = np.diag(np.exp(2 * own) + _JITTER + extra)
         total = cov_eta + k_delta + noise
         chol = np.linalg.cholesky(total[:n_obs, :n_obs])
@@ -830,6 +827,14 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
         deltas.append(k_delta[n_obs:, :n_obs] @ resid)
     return Predictive(mean=np.array(means), sample=np.array(samples),
                       discrepancy=np.array(deltas))
+
+
+def _per_row(values, output_index: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
+    """One draw's shared value, or its per-output values, at each of ``rows``."""
+    values = np.atleast_1d(values)
+    if output_index is not None and len(values) > 1:
+        return values[output_index[rows]]
+    return np.full(len(rows), values[0])
 
 
 def _se(a: np.ndarray, b: np.ndarray, lengthscale) -> np.ndarray:
