@@ -11,6 +11,7 @@ mixed, and the command on a short surrogate config.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -19,12 +20,14 @@ from scipy import special, stats
 from typer.testing import CliRunner
 
 from bpsflow.calibration import bayes
+from bpsflow.calibration import emulator as emulator_module
 from bpsflow.calibration.deterministic import calibrate as deterministic_calibrate
 from bpsflow.calibration.deterministic import objective
 from bpsflow.calibration.emulator import (
     GridEmulator,
     Hyperparameters,
     fit_emulator,
+    fit_hyperparameters,
     squared_exponential,
     standardise_unit,
 )
@@ -97,6 +100,23 @@ def test_emulator_interpolates_a_known_smooth_function():
                                         np.array(["y"] * len(x)))
     truth = toy_simulator(x, new).T
     assert np.max(np.abs(predicted - truth)) < 0.02 * np.ptp(truth)
+
+
+def test_hyperparameter_fit_escapes_the_short_length_scale_basin(monkeypatch):
+    """On a real design where one start falls into the all-nugget basin, the fit does not."""
+    frame = pd.read_csv(Path(__file__).parent / "data" / "emulator_short_basin.csv", comment="#")
+    x = frame.filter(regex=r"^x").to_numpy()
+    t = frame.filter(regex=r"^t").to_numpy()
+    y = frame["y"].to_numpy()
+    fitted = fit_hyperparameters(x, t, y, restarts=0)
+    # a simulator is deterministic: the nugget is numerical error, not most of the variance
+    assert fitted.nugget < 0.01 * fitted.signal_variance
+    assert len([n for n in fitted.notes if n.startswith("MLE from")]) == 1
+    monkeypatch.setattr(emulator_module, "_MLE_STARTS", emulator_module._MLE_STARTS[:1])
+    first_start_only = fit_hyperparameters(x, t, y, restarts=0)
+    # the data really have the trap: from the first start alone the nugget takes over
+    assert first_start_only.nugget > 0.05
+    assert fitted.log_marginal_likelihood > first_start_only.log_marginal_likelihood + 100
 
 
 def test_squared_exponential_is_the_seed_kernel():

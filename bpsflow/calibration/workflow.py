@@ -39,6 +39,9 @@ console = Console(stderr=True)
 
 POSTERIOR_RUNS_DIR = "posterior_runs"
 PREDICTIVE_DRAWS = 200
+# Below this hold-out R² the emulator's error is a sizeable part of what it predicts, and
+# the user is told so (the calibration still runs: its hold-out error enters the likelihood).
+EMULATOR_R2_WARN = 0.9
 
 
 @dataclass
@@ -161,6 +164,12 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
         console.print(f"[{scenario.name}] emulator: hold-out R² {emulator.test.r2:.4f} "
                       f"({len(emulator.test.test_runs)} runs), MLE fit "
                       f"{emulator.hyper.fit_seconds:.1f} s")
+        if emulator.test.r2 < EMULATOR_R2_WARN:
+            console.print(f"[yellow][{scenario.name}] warning: the emulator predicts its "
+                          f"held-out runs poorly (R² {emulator.test.r2:.3f} < "
+                          f"{EMULATOR_R2_WARN}); the posterior rests on it. More design runs "
+                          "(calibration.design.runs), fit points (calibration.emulator.points) "
+                          "or restarts (calibration.emulator.restarts) may help.[/yellow]")
 
     outputs_obs = paired.rows["output"].to_numpy()[obs_rows]
     observed = paired.observed[obs_rows]
