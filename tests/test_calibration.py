@@ -558,3 +558,46 @@ def test_predictive_discrepancy_takes_each_rows_own_output_scale():
     delta = prediction.discrepancy[0]
     assert np.all(np.abs(delta[groups[target_rows] == 0]) < 1e-3)
     assert np.all(delta[groups[target_rows] == 1] > 0.1)
+
+
+@pytest.mark.parametrize("likelihood", ["exact", "lowrank"])
+def test_known_correlated_error_is_the_gaussian_with_its_covariance_added(likelihood):
+    """A known error with covariance ``F Fᵀ`` (the emulator's hold-out errors, correlated over
+    rows) enters the log density as that covariance: equal to a hand-built Gaussian in the
+    exact likelihood and in the low-rank one (Woodbury on δ's inducing inputs and F together);
+    without it the density is the Gaussian without it."""
+    from numpyro.infer.util import log_density
+
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=10)
+    obs_rows = np.arange(10)
+    rng = np.random.default_rng(8)
+    factor = 0.3 * rng.normal(size=(10, 3))
+    y = factor[:, 0] * 3.0 + 0.05 * rng.normal(size=10)
+    settings = BayesSettings(likelihood=likelihood, inducing_points=10)
+    point = {"z": np.array([0.2]), "log_discrepancy_std": np.log(0.1),
+             "log_discrepancy_lengthscale": np.array([-0.5]), "log_noise_std": np.log(0.05)}
+    model = bayes.make_model(False, bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1),
+                                                   settings).priors, likelihood == "lowrank")
+
+    def density(extra_factor):
+        data = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1), settings,
+                              extra_factor=extra_factor)
+        return float(log_density(model, (bayes.model_arrays(data),), {}, point)[0])
+
+    t = standardise_unit(special.ndtr(point["z"]))
+    mean = emulator.grid.predict_mean(t[None, :])[0, obs_rows]
+    cov = emulator.grid.predict_cov(t)[np.ix_(obs_rows, obs_rows)]
+    if likelihood == "lowrank":
+        cov = np.diag(np.diag(cov))
+    xs = emulator.grid.x[obs_rows]
+    d2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(-1)
+    cov = cov + 0.01 * np.exp(-0.5 * d2 / np.exp(-0.5) ** 2) + np.diag(np.full(10, 0.0025 + 1e-8))
+    priors = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(1), settings).priors
+    prior_terms = (stats.norm(0, 1).logpdf(0.2)
+                   + stats.norm(*priors["log_discrepancy_std"]).logpdf(np.log(0.1))
+                   + stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf(-0.5)
+                   + stats.norm(*priors["log_noise_std"]).logpdf(np.log(0.05)))
+    with_factor = stats.multivariate_normal(mean, cov + factor @ factor.T).logpdf(y)
+    assert density(factor) == pytest.approx(with_factor + prior_terms, rel=1e-4)
+    without = stats.multivariate_normal(mean, cov).logpdf(y)
+    assert density(None) == pytest.approx(without + prior_terms, rel=1e-4)

@@ -98,6 +98,8 @@ class KohData:
     lowrank: bool = False
     x_inducing: np.ndarray | None = None   # (m, d_x) inducing inputs of δ (low-rank likelihood)
     extra_variance: np.ndarray | None = None  # (n,) known error variance (emulator error)
+    #: (n, r) known correlated error: covariance F Fᵀ (the emulator's hold-out errors)
+    extra_factor: np.ndarray | None = None
     noise_index: np.ndarray | None = None     # (n,) each observation's σ_ε (per-output noise)
     n_noise: int = 1                          # how many σ_ε: 1 shared, else one per output
     output_index: np.ndarray | None = None    # (n,) each observation's output (position)
@@ -106,11 +108,14 @@ class KohData:
 
 def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
              settings: BayesSettings, extra_variance: np.ndarray | None = None,
-             obs_outputs: np.ndarray | None = None) -> KohData:
+             obs_outputs: np.ndarray | None = None,
+             extra_factor: np.ndarray | None = None) -> KohData:
     """Assemble the likelihood's arrays from the emulator and the observation rows.
 
     ``extra_variance`` (per observation, standardised) is a known error
-    variance added to σ_ε² (the emulator's hold-out error). ``obs_outputs``
+    variance added to σ_ε² (the emulator's hold-out error); ``extra_factor``
+    (per observation, ``r`` columns) a known error with covariance ``F Fᵀ``
+    (the emulator's hold-out errors with their correlation between rows). ``obs_outputs``
     (per observation, the output's position) gives each output its own σ_ε
     when ``settings.noise_per_output`` is set, and its own δ scale σ_δ when
     ``settings.discrepancy_per_output`` is.
@@ -140,6 +145,8 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
                    ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing,
                    extra_variance=None if extra_variance is None
                    else np.asarray(extra_variance, dtype=float),
+                   extra_factor=None if extra_factor is None
+                   else np.asarray(extra_factor, dtype=float),
                    **_output_groups(settings, obs_outputs, len(obs_rows)))
 
 
@@ -255,7 +262,8 @@ def _cross_kernel(a, b, log_lengthscale, ard: bool):
     return jnp.exp(-0.5 * jnp.maximum(d2, 0.0))
 
 
-def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, ard: bool):
+def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, ard: bool,
+                        factor=None):
     """``log N(residual; 0, D + S (Q + diag(1 - q)) S)`` with δ's FITC covariance (JAX).
 
     δ's kernel is replaced by its Nyström approximation on ``m`` inducing
@@ -264,7 +272,8 @@ def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, 
     emulator's variances and the noise. Woodbury's identity makes a step
     ``O(n m²)`` instead of ``O(n³)``. ``sd_delta`` is δ's standard deviation,
     a scalar or one per observation (``S = diag(sd_delta)``: each output's own
-    scale on a shared correlation).
+    scale on a shared correlation). ``factor`` (n × r) adds a known
+    low-rank covariance ``F Fᵀ``; the Woodbury system is then ``m + r``.
     """
     import jax.numpy as jnp
     from jax.scipy.linalg import solve_triangular
@@ -277,6 +286,9 @@ def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, 
     q = jnp.sum(v * v, axis=0)
     diag = diagonal + sd_delta ** 2 * jnp.clip(1.0 - q, 0.0, None) + _JITTER
     w = sd_delta * v / jnp.sqrt(diag)[None, :]                            # (m, n)
+    if factor is not None:
+        w = jnp.concatenate([w, factor.T / jnp.sqrt(diag)[None, :]])    # (m + r, n)
+        m = w.shape[0]
     a = jnp.eye(m) + w @ w.T
     chol_a = jnp.linalg.cholesky(a)
     scaled = residual / jnp.sqrt(diag)
@@ -328,11 +340,12 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
             mean, variance = _emulator_moments(z, d, full=False)
             numpyro.factor("y", lowrank_log_density(
                 d["y"] - mean, variance + noise_variance + d["extra_variance"],
-                sd_delta, log_ls, d, ard))
+                sd_delta, log_ls, d, ard, d["extra_factor"]))
             return
         mean, cov = _emulator_moments(z, d)
         total = (cov + sd_delta[:, None] * sd_delta[None, :] * _discrepancy_kernel(log_ls, d, ard)
                  + jnp.diag(d["extra_variance"])
+                 + d["extra_factor"] @ d["extra_factor"].T
                  + jnp.diag(noise_variance + _JITTER))
         numpyro.factor("y", gaussian_log_density(total, d["y"] - mean))
 
@@ -357,6 +370,8 @@ def model_arrays(data: KohData) -> dict:
             "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1])),
             "extra_variance": np.zeros(len(data.y)) if data.extra_variance is None
             else data.extra_variance,
+            "extra_factor": np.zeros((len(data.y), 1)) if data.extra_factor is None
+            else data.extra_factor,
             "noise_index": np.zeros(len(data.y), dtype=int) if data.noise_index is None
             else data.noise_index,
             "output_index": np.zeros(len(data.y), dtype=int) if data.output_index is None
@@ -774,7 +789,8 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
                y_obs: np.ndarray, unit: np.ndarray, log_sd_delta: np.ndarray,
                log_lengthscale: np.ndarray, log_sd_eps: np.ndarray, ard: bool,
                x_inducing: np.ndarray | None = None, extra_variance: np.ndarray | None = None,
-               random_state: int = 0, noise_index: np.ndarray | None = None) -> Predictive:
+               random_state: int = 0, noise_index: np.ndarray | None = None,
+               extra_factor: np.ndarray | None = None) -> Predictive:
     """KOH posterior predictive of new observations at ``target_rows`` (standardised).
 
     For each draw: the Gaussian conditional of ``y(target)`` (emulator +
@@ -787,7 +803,10 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
     variance of the likelihood (the emulator's hold-out error). With one σ_ε
     (σ_δ) per output, ``log_sd_eps`` (``log_sd_delta``) has a column per
     output and ``noise_index`` (per grid row: the row's output) says which is
-    the row's.
+    the row's. ``extra_factor`` (per grid row, ``r`` columns) is the known
+    correlated error of the likelihood, covariance ``F Fᵀ``; it is correlated
+    between the observed and the target rows, so it enters the conditional
+    mean like δ.
     """
     rng = np.random.default_rng(random_state)
     rows = np.concatenate([obs_rows, target_rows])
@@ -796,6 +815,7 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
     means, samples, deltas = [], [], []
     t_all = (unit - 0.5) * SQRT12
     mean_all = grid.predict_mean(t_all)[:, rows]
+    known = 0.0 if extra_factor is None else extra_factor[rows] @ extra_factor[rows].T
     for i in range(len(unit)):
         cov_eta = grid.predict_cov(t_all[i])[np.ix_(rows, rows)]
         ls = np.exp(np.atleast_1d(log_lengthscale[i]))
@@ -813,7 +833,7 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
         extra = np.zeros(len(rows)) if extra_variance is None else extra_variance[rows]
         own = _per_row(log_sd_eps[i], noise_index, rows)
         noise = np.diag(np.exp(2 * own) + _JITTER + extra)
-        total = cov_eta + k_delta + noise
+        total = cov_eta + k_delta + noise + known
         chol = np.linalg.cholesky(total[:n_obs, :n_obs])
         resid = np.linalg.solve(chol.T, np.linalg.solve(chol, y_obs - mean_all[i, :n_obs]))
         cross = total[n_obs:, :n_obs] - (noise[n_obs:, :n_obs])

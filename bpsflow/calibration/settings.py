@@ -127,7 +127,10 @@ class BayesSettings(_Strict):
     held-out runs (per output, standardised) to every observation's variance:
     the GP's own conditional variance is far smaller than its error on new
     runs, and without this the calibration parameters absorb the emulator's
-    error and their posterior is too narrow.
+    error and their posterior is too narrow. ``correlated`` adds the held-out
+    runs' errors with their correlation between rows instead (covariance
+    ``F Fᵀ``, one column of ``F`` per held-out run): at a given θ the emulator
+    errs alike over many hourly rows, which per-row variances average away.
 
     Chains run in parallel, ``parallel_chains`` at a time (default: all of
     them for up to 30 observations, else one per CPU core).
@@ -164,7 +167,7 @@ class BayesSettings(_Strict):
     ard: bool = False
     noise_per_output: bool = False
     discrepancy_per_output: bool = False
-    emulator_error: Literal["holdout", "none"] = "holdout"
+    emulator_error: Literal["holdout", "correlated", "none"] = "holdout"
     likelihood: Literal["auto", "exact", "lowrank"] = "auto"
     exact_max_observations: int = Field(default=150, ge=1)
     inducing_points: int = Field(default=32, ge=4)

@@ -221,16 +221,19 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
     outputs_obs = run.paired.rows["output"].to_numpy()[run.obs_rows]
     y = emulator.scaling.y(run.paired.observed[run.obs_rows], outputs_obs)
     row_output = emulator.scaling.output_index(run.paired.rows["output"].to_numpy())
-    extra = None
+    extra, factor = None, None
     if bs.emulator_error == "holdout" and emulator.test is not None:
         # per grid row: the emulator's hold-out squared error of the row's output
         mse = np.array([emulator.test.per_output[o]["mse_standardised"]
                         for o in emulator.scaling.outputs])
         extra = mse[row_output]
+    elif bs.emulator_error == "correlated" and emulator.test is not None:
+        factor = holdout_error_factor(emulator, row_output)
     run.extra_variance = extra
     data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs,
                           None if extra is None else extra[run.obs_rows],
-                          obs_outputs=row_output[run.obs_rows])
+                          obs_outputs=row_output[run.obs_rows],
+                          extra_factor=None if factor is None else factor[run.obs_rows])
     z_start = special.ndtri(np.clip(run.deterministic.unit, 1e-6, 1 - 1e-6)) \
         if bs.init == "deterministic" else None
     inverse_mass = None
@@ -263,12 +266,14 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
         emulator.grid, run.obs_rows, run.heldout_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
         flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
-        extra_variance=extra, random_state=bs.seed, noise_index=row_output)
+        extra_variance=extra, random_state=bs.seed, noise_index=row_output,
+        extra_factor=factor)
     at_obs = bayes.predictive(
         emulator.grid, run.obs_rows, run.obs_rows, y, run.unit_draws[pick],
         flat["log_discrepancy_std"][pick], flat["log_discrepancy_lengthscale"][pick],
         flat["log_noise_std"][pick], bs.ard, x_inducing=data.x_inducing,
-        extra_variance=extra, random_state=bs.seed, noise_index=row_output)
+        extra_variance=extra, random_state=bs.seed, noise_index=row_output,
+        extra_factor=factor)
     outputs_h = run.paired.rows["output"].to_numpy()[run.heldout_rows]
     scaling = emulator.scaling
     run.predictive = {
@@ -364,6 +369,24 @@ def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSe
     run.heldout = (frame.sort_values(["resolution", "output", "_order"])
                    .drop(columns="_order").reset_index(drop=True))
     run.timings["physical_check_seconds"] = time.perf_counter() - started
+
+
+def holdout_error_factor(emulator: Emulator, row_output: np.ndarray) -> np.ndarray:
+    """``F`` (rows × test runs) with ``F Fᵀ`` the emulator's hold-out error covariance.
+
+    Each held-out run's error at every row (standardised) is one column, scaled
+    by ``1/√runs``: ``F Fᵀ`` is the errors' empirical second moment, whose
+    diagonal is each row's mean squared error and whose off-diagonal keeps how
+    the errors of one run move together over the rows. An emulator's error at
+    a given θ is a smooth function of the variable inputs, nearly the same
+    over hundreds of hourly rows; counted as independent per row it averages
+    away and θ absorbs it.
+    """
+    test = emulator.test
+    assert test is not None
+    std = emulator.scaling.y_std[row_output]
+    errors = (test.simulated - test.predicted) / std[None, :]        # (test runs, rows)
+    return errors.T / np.sqrt(len(errors))
 
 
 def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
