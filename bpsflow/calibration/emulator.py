@@ -123,19 +123,23 @@ class Hyperparameters:
 # (they move the outputs less than the weather does, which saves optimiser iterations);
 # from it alone L-BFGS can fall into a basin where every length-scale is short and the
 # nugget explains most of the variance (seen on a daily, heating-only design, where the
-# emulator then predicted nothing on its held-out runs), which the isotropic start avoids. Neither start is best on
-# every data set, so both are fitted and the larger marginal likelihood kept.
+# emulator then predicted nothing on its held-out runs), which the isotropic start avoids.
+# The second start is fitted when the first fit's nugget carries more than
+# _NUGGET_SHARE_MAX of the variance (a simulator is deterministic: its nugget is numerical
+# error), and the larger marginal likelihood is kept.
 _MLE_STARTS = ((1.5, 10.0), (3.0, 3.0))
+_NUGGET_SHARE_MAX = 0.01
 
 
 def fit_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray, restarts: int = 1,
                         random_state: int = 0) -> Hyperparameters:
     """Maximum-likelihood hyperparameters of the ARD squared-exponential GP (scikit-learn).
 
-    The marginal likelihood is maximised from each of the deterministic starts
-    ``_MLE_STARTS`` (plus ``restarts`` random ones from each, scikit-learn's
-    ``n_restarts_optimizer``) and the best optimum is kept; every start's
-    optimum is listed in the notes.
+    The marginal likelihood is maximised from the deterministic starts
+    ``_MLE_STARTS`` in turn (plus ``restarts`` random ones from each,
+    scikit-learn's ``n_restarts_optimizer``) until a fit's nugget is at most
+    ``_NUGGET_SHARE_MAX`` of the variance, and the best optimum is kept;
+    every start's optimum is listed in the notes.
 
     Parameters
     ----------
@@ -167,6 +171,9 @@ def fit_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray, restarts: i
         notes |= {str(w.message).split(".")[0] for w in caught
                   if issubclass(w.category, ConvergenceWarning)}
         fits.append((float(gp.log_marginal_likelihood_value_), gp.kernel_))
+        nugget, signal = gp.kernel_.k2.noise_level, gp.kernel_.k1.k1.constant_value
+        if nugget <= _NUGGET_SHARE_MAX * (nugget + signal):
+            break
     best = int(np.argmax([lml for lml, _ in fits]))
     log_likelihood, learned = fits[best]
     notes.add("MLE from " + ", ".join(f"start {i + 1}: log marginal likelihood {lml:.1f}"
