@@ -370,7 +370,8 @@ def model_arrays(data: KohData) -> dict:
             "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1])),
             "extra_variance": np.zeros(len(data.y)) if data.extra_variance is None
             else data.extra_variance,
-            "extra_factor": np.zeros((len(data.y), 1)) if data.extra_factor is None
+            # no columns when there is none: no extra rows in the Woodbury system, no work
+            "extra_factor": np.zeros((len(data.y), 0)) if data.extra_factor is None
             else data.extra_factor,
             "noise_index": np.zeros(len(data.y), dtype=int) if data.noise_index is None
             else data.noise_index,
