@@ -40,7 +40,7 @@ test: $(STAMP)
 	$(MAKE) lint
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal --durations=20
 
-# Everything but the tests marked slow (end-to-end runs of a minute or more).
+# Everything but the tests marked slow (end-to-end runs of ten seconds or more): under 3 min.
 test-fast: $(STAMP)
 	$(PY) -m ruff check bpsflow tests bench .ci
 	$(PY) -m pytest -q -m "not slow" -n $(TEST_WORKERS) --dist worksteal

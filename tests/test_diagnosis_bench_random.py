@@ -273,6 +273,7 @@ def test_an_interrupted_run_is_scored_from_its_finished_rows(tmp_path, monkeypat
     assert (tmp_path / "bench" / "diagnosis_random.md").is_file()
 
 
+@pytest.mark.slow
 def test_an_effect_a_fitted_input_reproduces_is_fully_absorbed_and_a_wind_leak_is_not(tmp_path):
     """The bench's unabsorbed share: 0 for a fitted input's own change, most of a wind leak.
 

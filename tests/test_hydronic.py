@@ -53,6 +53,7 @@ def test_surrogate_refuses_the_hydronic_model():
 
 
 @pytest.mark.energyplus
+@pytest.mark.slow
 def test_prototype_and_baseline_run_their_own_controls(tmp_path):
     """Two prototype instances and the baseline truth: the radiators heat on weekdays only
     (the model's schedule, not the tool's), and one config's targets reach both models."""
