@@ -274,6 +274,19 @@ def save_figure(figure: Any, path: str | os.PathLike, **kwargs: Any) -> Path:
     return _atomic(path, lambda handle: figure.savefig(handle, format=image_format, **kwargs))
 
 
+def user_cache_dir() -> Path:
+    """bpsflow's folder for what it keeps between runs only to save time.
+
+    ``$XDG_CACHE_HOME/bpsflow`` (``~/.cache/bpsflow``), or the system's
+    temporary folder when the home cache cannot be written. Nothing in it is
+    a result: deleting it costs time, never an answer.
+    """
+    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    if not os.access(root if root.exists() else root.parent, os.W_OK):
+        root = Path(tempfile.gettempdir())
+    return root / "bpsflow"
+
+
 def inside(root: str | os.PathLike, *parts: str | os.PathLike) -> Path:
     """``root / parts...``, resolved, refused when it would leave ``root``.
 

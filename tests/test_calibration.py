@@ -207,6 +207,25 @@ def test_credible_intervals_cover_at_their_nominal_rate():
 # Deterministic baseline
 
 
+def test_compiled_programs_are_kept_where_the_user_says_or_not_at_all(tmp_path, monkeypatch):
+    """The NUTS programs' disk cache: a named folder, ``off``, or the user cache by default;
+    a folder that cannot be written leaves it off instead of failing the calibration."""
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "home-cache"))
+    monkeypatch.delenv(bayes.COMPILATION_CACHE_ENV, raising=False)
+    assert bayes.compilation_cache_dir() == tmp_path / "home-cache" / "bpsflow" / "jax"
+    monkeypatch.setenv(bayes.COMPILATION_CACHE_ENV, str(tmp_path / "mine"))
+    assert bayes.compilation_cache_dir() == tmp_path / "mine"
+    for off in ("off", "OFF", "0"):
+        monkeypatch.setenv(bayes.COMPILATION_CACHE_ENV, off)
+        assert bayes.compilation_cache_dir() is None
+        assert bayes.enable_compilation_cache() is None
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    monkeypatch.setenv(bayes.COMPILATION_CACHE_ENV, str(blocked / "jax"))
+    assert bayes.enable_compilation_cache() is None
+
+
 def test_deterministic_optimiser_finds_a_known_optimum():
     x = np.linspace(0, 1, 20)
     target = np.array([0.23, 0.71])

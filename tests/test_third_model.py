@@ -64,7 +64,8 @@ CONFIG = {
                     "emulator": {"points": 120}, "posterior_runs": 4, "holdout_days": 2},
     # the shape screen (each candidate simulated at a trial size) is tested on both shipped
     # models and the three-zone office; here diagnose needs only to run through
-    "diagnosis": {"holdout_days": 2, "shape_screen": False},
+    # and fits from the nominal start and one screened start (16 and 3 by default on EnergyPlus)
+    "diagnosis": {"holdout_days": 2, "shape_screen": False, "start_screen": 4, "fit_starts": 1},
 }
 TRUTH = {"values": {"wall_resistance": 0.85, "infiltration_flow": 1.6,
                     "baseboard_efficiency": 0.93},

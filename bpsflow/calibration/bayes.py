@@ -44,6 +44,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy import special, stats
@@ -69,6 +70,60 @@ def configure_jax(devices: int) -> None:
     if "xla_force_host_platform_device_count" not in flags:
         numpyro.set_host_device_count(devices)
     numpyro.enable_x64()
+    enable_compilation_cache()
+
+
+#: Environment variable naming the folder of XLA's compiled programs, or ``off``.
+COMPILATION_CACHE_ENV = "BPSFLOW_JAX_CACHE"
+#: Above this size the cache drops its least recently used programs (bytes).
+_COMPILATION_CACHE_BYTES = 1 << 30
+
+
+def compilation_cache_dir() -> Path | None:
+    """Where compiled NUTS and likelihood programs are kept between runs (None: off).
+
+    ``$BPSFLOW_JAX_CACHE`` (a folder, or ``off``), else JAX's own
+    ``$JAX_COMPILATION_CACHE_DIR``, else ``jax`` in
+    :func:`bpsflow.files.user_cache_dir` (``~/.cache/bpsflow/jax``).
+    """
+    from bpsflow.files import user_cache_dir
+
+    chosen = os.environ.get(COMPILATION_CACHE_ENV) or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if chosen is not None and chosen.strip().lower() in ("off", "0", "false", "none"):
+        return None
+    if chosen:
+        return Path(chosen).expanduser()
+    return user_cache_dir() / "jax"
+
+
+def enable_compilation_cache() -> Path | None:
+    """Keep XLA's compiled programs on disk (JAX's persistent compilation cache).
+
+    Every NUTS run compiles its warm-up and sampling loops and the
+    likelihood's gradient (tens of XLA programs, seconds each); a program of
+    the same model, shapes and settings is then read back instead, in this
+    process (the next scenario, truth or fold) and in later ones. A size
+    limit makes JAX lock the folder, so parallel processes share it safely.
+    The cache only saves time: a folder that cannot be written leaves it
+    off, with the same results.
+    """
+    import jax
+
+    folder = compilation_cache_dir()
+    if folder is None:
+        return None
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".write-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError:
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    jax.config.update("jax_compilation_cache_max_size", _COMPILATION_CACHE_BYTES)
+    return folder
 
 
 @dataclass

@@ -61,8 +61,10 @@ SUM_BELOW_ONE: dict[str, tuple[tuple[str, str], ...]] = {
 }
 
 
+@lru_cache(maxsize=4096)
 def normalise(name: str) -> str:
-    """Field/type names compared without case, spaces or punctuation."""
+    """Field/type names compared without case, spaces or punctuation (memoised: every run
+    of a batch matches its targets against the model's objects)."""
     return re.sub(r"[^a-z0-9]", "", name.lower())
 
 

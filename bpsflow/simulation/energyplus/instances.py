@@ -67,17 +67,14 @@ def _set_idd(idd: str) -> None:
 def _parsed_idd_cache(idd: Path) -> Path:
     """Where eppy's parse of ``idd`` is kept between processes (per IDD file and eppy version)."""
     import hashlib
-    import os
-    import tempfile
     from importlib.metadata import version
+
+    from bpsflow.files import user_cache_dir
 
     stat = idd.stat()
     key = hashlib.sha256(f"{idd.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|"
                          f"{version('eppy')}".encode()).hexdigest()[:20]
-    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    if not os.access(root if root.exists() else root.parent, os.W_OK):
-        root = Path(tempfile.gettempdir())
-    return root / "bpsflow" / f"eppy-idd-{key}.pickle"
+    return user_cache_dir() / f"eppy-idd-{key}.pickle"
 
 
 def _load_parsed_idd(idd: Path) -> None:
