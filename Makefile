@@ -52,6 +52,7 @@ bench: $(STAMP)
 	$(PY) -m pip install --quiet scoringrules   # reference CRPS, for the benchmark only
 	$(PY) bench/metrics_bench.py
 	$(PY) bench/calibration_bench.py
+	$(PY) bench/compile_cache_bench.py
 	$(PY) bench/refine_bench.py --truths 4
 	$(PY) bench/diagnosis_bench.py --nulls 30 --seeds 10 --energyplus
 	$(PY) bench/diagnosis_bench.py --parts shipped-energyplus --jobs $(JOBS)

@@ -26,6 +26,10 @@
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,6 +138,59 @@ def energyplus_airmass(zenith: np.ndarray) -> np.ndarray:
     return np.where(zenith <= 75.0, 1.0 / cos_zenith, kasten)
 
 
+#: Results of the sun-geometry functions below, by the content of their arguments, with their
+#: size in bytes; the least recently used go beyond ``_SOLAR_MEMO_BYTES``.
+_SOLAR_MEMO: OrderedDict[bytes, tuple] = OrderedDict()
+_SOLAR_MEMO_BYTES = 128 << 20
+_solar_memo_held = [0]
+_SOLAR_MEMO_LOCK = threading.Lock()   # a Dask worker's threads share the module
+
+
+def _content_key(name: str, args: tuple) -> bytes:
+    digest = hashlib.blake2b(name.encode(), digest_size=20)
+    for value in args:
+        if isinstance(value, pd.DatetimeIndex):
+            value = value.asi8
+        if isinstance(value, np.ndarray) or value is None or np.isscalar(value):
+            array = np.ascontiguousarray(np.asarray(value if value is not None else np.nan))
+            digest.update(f"{array.dtype.str}{array.shape}".encode())
+            digest.update(array.tobytes())
+        else:
+            digest.update(repr(value).encode())
+    return digest.digest()
+
+
+def _memoised(function):
+    """Memoise a pure function of arrays by their content (returned arrays read-only).
+
+    A diagnosis or a sample simulates the same weather days many times with
+    different inputs; the sun's geometry on each face and the Perez sky are
+    the same every time. Read-only results make a caller that would modify
+    one fail instead of changing the next call's answer.
+    """
+    @functools.wraps(function)
+    def memoised(*args):
+        key = _content_key(function.__name__, args)
+        with _SOLAR_MEMO_LOCK:
+            if key in _SOLAR_MEMO:
+                _SOLAR_MEMO.move_to_end(key)
+                return _SOLAR_MEMO[key][0]
+        result = function(*args)
+        arrays = [a for a in (result if isinstance(result, tuple) else (result,))
+                   if isinstance(a, np.ndarray)]
+        for array in arrays:
+            array.flags.writeable = False
+        with _SOLAR_MEMO_LOCK:
+            if key not in _SOLAR_MEMO:
+                _SOLAR_MEMO[key] = (result, sum(a.nbytes for a in arrays))
+                _solar_memo_held[0] += _SOLAR_MEMO[key][1]
+            while _solar_memo_held[0] > _SOLAR_MEMO_BYTES and len(_SOLAR_MEMO) > 1:
+                _solar_memo_held[0] -= _SOLAR_MEMO.popitem(last=False)[1][1]
+        return result
+    return memoised
+
+
+@_memoised
 def facade_irradiance(times: pd.DatetimeIndex, zenith: np.ndarray, azimuth: np.ndarray,
                       dni: np.ndarray, dhi: np.ndarray, tilt: float, surface_azimuth: float,
                       beam_zenith: np.ndarray | None = None,
@@ -306,6 +363,7 @@ def lookup(table: np.ndarray, index: np.ndarray, weight: np.ndarray) -> np.ndarr
 
 # Beam sunlight inside the cell -----------------------------------------
 
+@_memoised
 def beam_floor_fraction(zenith: np.ndarray, azimuth: np.ndarray, window_x: tuple[float, float],
                         window_z: tuple[float, float], floor_x: tuple[float, float],
                         depth: float, samples: int = 24) -> np.ndarray:
