@@ -624,8 +624,12 @@ def resolve_weather(path: Path, base: Path) -> Path:
         + (f" and in {bundled}" if bundled else "") + "); expected an EPW file")
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """The safe loader, refusing a key repeated in one mapping (YAML would keep the last)."""
+class _UniqueKeyLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
+    """The safe loader, refusing a key repeated in one mapping (YAML would keep the last).
+
+    libyaml's parser where PyYAML has it: a diagnosis reloads its configs tens
+    of times, and the pure-Python scanner spent about 0.1 s on each.
+    """
 
 
 def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:

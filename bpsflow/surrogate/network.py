@@ -470,18 +470,20 @@ class _Stepper:
         if not gains:
             return None
         net, n = self.net, self.net.n
-        count = steps.stop - steps.start
-        out = np.zeros((n, count, net.size))
         faces = net.inside + [net.pane_in]
         absorbing = self.opaque_areas * np.stack(self.emissivity_in, axis=1)  # (n, faces)
         share = absorbing / absorbing.sum(axis=1, keepdims=True)
+        convective = radiant = 0.0
         for gain in gains:
             level = gain.design_w[:, None] * self.forcing.schedules[
                 gain.schedule.name.upper()][steps][None, :]              # (n, s) W
-            out[:, :, net.AIR] += gain.fraction_convective[:, None] * level
-            radiant = gain.fraction_radiant[:, None] * level
-            for m, face in enumerate(faces):
-                out[:, :, face] += share[:, m:m + 1] * radiant
+            convective = convective + gain.fraction_convective[:, None] * level
+            radiant = radiant + gain.fraction_radiant[:, None] * level
+        # each node's share of the radiant part, the air's of the convective: (n, size)
+        radiant_share = np.zeros((n, net.size))
+        np.add.at(radiant_share, (slice(None), np.asarray(faces)), share)
+        out = np.asarray(radiant)[:, :, None] * radiant_share[:, None, :]
+        out[:, :, net.AIR] += convective
         return out
 
     def kernel_constants(self) -> kernel.KernelConstants:

@@ -75,6 +75,60 @@ def _position(hours: np.ndarray, sine_declination: np.ndarray, equation_of_time:
     return zenith, np.degrees(np.arctan2(east, north)) % 360.0
 
 
+#: Results of the sun-geometry functions below, by the content of their arguments, with their
+#: size in bytes; the least recently used go beyond ``_SOLAR_MEMO_BYTES``.
+_SOLAR_MEMO: OrderedDict[bytes, tuple] = OrderedDict()
+_SOLAR_MEMO_BYTES = 128 << 20
+_solar_memo_held = [0]
+_SOLAR_MEMO_LOCK = threading.Lock()   # a Dask worker's threads share the module
+
+
+def _content_key(name: str, args: tuple) -> bytes:
+    digest = hashlib.blake2b(name.encode(), digest_size=20)
+    for value in args:
+        if isinstance(value, pd.DatetimeIndex):
+            value = value.asi8
+        if isinstance(value, np.ndarray) or value is None or np.isscalar(value):
+            array = np.ascontiguousarray(np.asarray(value if value is not None else np.nan))
+            digest.update(f"{array.dtype.str}{array.shape}".encode())
+            digest.update(array.tobytes())
+        else:
+            digest.update(repr(value).encode())
+    return digest.digest()
+
+
+def _memoised(function):
+    """Memoise a pure function of arrays by their content (returned arrays read-only).
+
+    A diagnosis or a sample simulates the same weather days many times with
+    different inputs; the sun's geometry on each face and the Perez sky are
+    the same every time. Read-only results make a caller that would modify
+    one fail instead of changing the next call's answer.
+    """
+    @functools.wraps(function)
+    def memoised(*args, **kwargs):
+        named = tuple(item for name in sorted(kwargs) for item in (name, kwargs[name]))
+        key = _content_key(function.__name__, args + named)
+        with _SOLAR_MEMO_LOCK:
+            if key in _SOLAR_MEMO:
+                _SOLAR_MEMO.move_to_end(key)
+                return _SOLAR_MEMO[key][0]
+        result = function(*args, **kwargs)
+        arrays = [a for a in (result if isinstance(result, tuple) else (result,))
+                   if isinstance(a, np.ndarray)]
+        for array in arrays:
+            array.flags.writeable = False
+        with _SOLAR_MEMO_LOCK:
+            if key not in _SOLAR_MEMO:
+                _SOLAR_MEMO[key] = (result, sum(a.nbytes for a in arrays))
+                _solar_memo_held[0] += _SOLAR_MEMO[key][1]
+            while _solar_memo_held[0] > _SOLAR_MEMO_BYTES and len(_SOLAR_MEMO) > 1:
+                _solar_memo_held[0] -= _SOLAR_MEMO.popitem(last=False)[1][1]
+        return result
+    return memoised
+
+
+@_memoised
 def sun_positions(step_ends: pd.DatetimeIndex, latitude: float, longitude: float,
                   time_zone: float, shading_days: int | None = SHADING_DAYS
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -136,58 +190,6 @@ def energyplus_airmass(zenith: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         kasten = 1.0 / (cos_zenith + 0.15 * (93.9 - zenith) ** -1.253)
     return np.where(zenith <= 75.0, 1.0 / cos_zenith, kasten)
-
-
-#: Results of the sun-geometry functions below, by the content of their arguments, with their
-#: size in bytes; the least recently used go beyond ``_SOLAR_MEMO_BYTES``.
-_SOLAR_MEMO: OrderedDict[bytes, tuple] = OrderedDict()
-_SOLAR_MEMO_BYTES = 128 << 20
-_solar_memo_held = [0]
-_SOLAR_MEMO_LOCK = threading.Lock()   # a Dask worker's threads share the module
-
-
-def _content_key(name: str, args: tuple) -> bytes:
-    digest = hashlib.blake2b(name.encode(), digest_size=20)
-    for value in args:
-        if isinstance(value, pd.DatetimeIndex):
-            value = value.asi8
-        if isinstance(value, np.ndarray) or value is None or np.isscalar(value):
-            array = np.ascontiguousarray(np.asarray(value if value is not None else np.nan))
-            digest.update(f"{array.dtype.str}{array.shape}".encode())
-            digest.update(array.tobytes())
-        else:
-            digest.update(repr(value).encode())
-    return digest.digest()
-
-
-def _memoised(function):
-    """Memoise a pure function of arrays by their content (returned arrays read-only).
-
-    A diagnosis or a sample simulates the same weather days many times with
-    different inputs; the sun's geometry on each face and the Perez sky are
-    the same every time. Read-only results make a caller that would modify
-    one fail instead of changing the next call's answer.
-    """
-    @functools.wraps(function)
-    def memoised(*args):
-        key = _content_key(function.__name__, args)
-        with _SOLAR_MEMO_LOCK:
-            if key in _SOLAR_MEMO:
-                _SOLAR_MEMO.move_to_end(key)
-                return _SOLAR_MEMO[key][0]
-        result = function(*args)
-        arrays = [a for a in (result if isinstance(result, tuple) else (result,))
-                   if isinstance(a, np.ndarray)]
-        for array in arrays:
-            array.flags.writeable = False
-        with _SOLAR_MEMO_LOCK:
-            if key not in _SOLAR_MEMO:
-                _SOLAR_MEMO[key] = (result, sum(a.nbytes for a in arrays))
-                _solar_memo_held[0] += _SOLAR_MEMO[key][1]
-            while _solar_memo_held[0] > _SOLAR_MEMO_BYTES and len(_SOLAR_MEMO) > 1:
-                _solar_memo_held[0] -= _SOLAR_MEMO.popitem(last=False)[1][1]
-        return result
-    return memoised
 
 
 @_memoised
