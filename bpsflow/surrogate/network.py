@@ -481,7 +481,8 @@ class _Stepper:
             radiant = radiant + gain.fraction_radiant[:, None] * level
         # each node's share of the radiant part, the air's of the convective: (n, size)
         radiant_share = np.zeros((n, net.size))
-        np.add.at(radiant_share, (slice(None), np.asarray(faces)), share)
+        for m, face in enumerate(faces):
+            radiant_share[:, face] += share[:, m]
         out = np.asarray(radiant)[:, :, None] * radiant_share[:, None, :]
         out[:, :, net.AIR] += convective
         return out
