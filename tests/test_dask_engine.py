@@ -238,8 +238,12 @@ def test_ctrl_c_stops_the_run_and_leaves_it_resumable(tmp_path, engine):
     bpsflow = str(Path(sys.executable).with_name("bpsflow"))
     command = [bpsflow, "run", str(path), "--engine", engine, "--jobs", "2", "--no-progress"]
     # a terminal's Ctrl-C reaches the whole foreground process group: the command and its workers
+    # ... and a terminal's foreground command starts with Ctrl-C at its default action. The
+    # test worker may have SIGINT ignored by then (the test passed alone and failed after the
+    # slow EnergyPlus tests); a child inherits that and, as a nohup'd command should, ignores it
     running = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+                               start_new_session=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     instances = tmp_path / "run" / "instances"
     deadline = time.monotonic() + 120
     while len(list(instances.glob("*/outputs.parquet"))) < 2 and time.monotonic() < deadline:
