@@ -12,7 +12,7 @@ JOBS   ?= 2
 TEST_WORKERS ?= 2
 DEMO_SAMPLES ?= 200
 
-.PHONY: install demo test test-fast lint bench diagnose-office-demo study study-energyplus calibrate-demo diagnose-demo hydronic-demo clean
+.PHONY: install demo test test-fast test-long lint bench diagnose-office-demo study study-energyplus calibrate-demo diagnose-demo hydronic-demo clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -38,7 +38,11 @@ lint: $(STAMP)
 # The slowest tests are listed at the end: the suite's 20-minute budget is spent there.
 test: $(STAMP)
 	$(MAKE) lint
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal --durations=20
+	$(PY) -m pytest -q -m "not long" -n $(TEST_WORKERS) --dist worksteal --durations=20
+
+# The tests marked long (a diagnosis of four rounds, a law chosen on EnergyPlus): make bench runs them too.
+test-long: $(STAMP)
+	$(PY) -m pytest -q -m long -n $(TEST_WORKERS) --dist worksteal
 
 # Everything but the tests marked slow (end-to-end runs of ten seconds or more): under 3 min.
 test-fast: $(STAMP)
@@ -46,6 +50,7 @@ test-fast: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" -n $(TEST_WORKERS) --dist worksteal
 
 bench: $(STAMP)
+	$(MAKE) test-long
 	$(PY) bench/run_throughput.py --instances 200 --jobs $(JOBS)
 	$(PY) bench/scaleout.py
 	$(PY) bench/surrogate_bench.py
