@@ -976,7 +976,7 @@ def test_hidden_effect_on_energyplus(effect, value, tmp_path):
                                             "suspects": ["global_irradiance_gain",
                                                          "exterior_wind_coefficient"],
                                             "max_rounds": 2, "start_screen": 4,
-                                            "fit_starts": 1, "cv_candidates": 1}})
+                                            "fit_starts": 1}})
     case = make_case(base, tmp_path / "truth", effect, value, {
         "glazing_dirt_correction": 0.92, "return_air_offset": -0.2}, seed=3,
         backend="energyplus")
