@@ -75,26 +75,47 @@ def _position(hours: np.ndarray, sine_declination: np.ndarray, equation_of_time:
     return zenith, np.degrees(np.arctan2(east, north)) % 360.0
 
 
-#: Results of the sun-geometry functions below, by the content of their arguments, with their
-#: size in bytes; the least recently used go beyond ``_SOLAR_MEMO_BYTES``.
-_SOLAR_MEMO: OrderedDict[bytes, tuple] = OrderedDict()
-_SOLAR_MEMO_BYTES = 128 << 20
-_solar_memo_held = [0]
-_SOLAR_MEMO_LOCK = threading.Lock()   # a Dask worker's threads share the module
+class _ContentMemo:
+    """Results of the sun-geometry functions below, by the content of their arguments; the
+    least recently used go once they hold more than ``limit_bytes``."""
+
+    def __init__(self, limit_bytes: int):
+        self.entries: OrderedDict[bytes, tuple] = OrderedDict()   # key -> (result, bytes)
+        self.held = 0
+        self.limit_bytes = limit_bytes
+        self.lock = threading.Lock()   # a Dask worker's threads share the module
+
+    @staticmethod
+    def key(name: str, args: tuple) -> bytes:
+        digest = hashlib.blake2b(name.encode(), digest_size=20)
+        for value in args:
+            if isinstance(value, pd.DatetimeIndex):
+                value = value.asi8
+            if isinstance(value, np.ndarray):
+                array = np.ascontiguousarray(value)
+                digest.update(f"{array.dtype.str}{array.shape}".encode() + array.tobytes())
+            else:   # scalars, None, tuples of floats: repr is exact
+                digest.update(repr(value).encode())
+            digest.update(b"|")
+        return digest.digest()
+
+    def get(self, key: bytes):
+        with self.lock:
+            if key not in self.entries:
+                return None
+            self.entries.move_to_end(key)
+            return self.entries[key][0]
+
+    def put(self, key: bytes, result, size: int) -> None:
+        with self.lock:
+            if key not in self.entries:
+                self.entries[key] = (result, size)
+                self.held += size
+            while self.held > self.limit_bytes and len(self.entries) > 1:
+                self.held -= self.entries.popitem(last=False)[1][1]
 
 
-def _content_key(name: str, args: tuple) -> bytes:
-    digest = hashlib.blake2b(name.encode(), digest_size=20)
-    for value in args:
-        if isinstance(value, pd.DatetimeIndex):
-            value = value.asi8
-        if isinstance(value, np.ndarray) or value is None or np.isscalar(value):
-            array = np.ascontiguousarray(np.asarray(value if value is not None else np.nan))
-            digest.update(f"{array.dtype.str}{array.shape}".encode())
-            digest.update(array.tobytes())
-        else:
-            digest.update(repr(value).encode())
-    return digest.digest()
+_SOLAR_MEMO = _ContentMemo(128 << 20)
 
 
 def _memoised(function):
@@ -108,22 +129,16 @@ def _memoised(function):
     @functools.wraps(function)
     def memoised(*args, **kwargs):
         named = tuple(item for name in sorted(kwargs) for item in (name, kwargs[name]))
-        key = _content_key(function.__name__, args + named)
-        with _SOLAR_MEMO_LOCK:
-            if key in _SOLAR_MEMO:
-                _SOLAR_MEMO.move_to_end(key)
-                return _SOLAR_MEMO[key][0]
+        key = _SOLAR_MEMO.key(function.__name__, args + named)
+        cached = _SOLAR_MEMO.get(key)
+        if cached is not None:
+            return cached
         result = function(*args, **kwargs)
         arrays = [a for a in (result if isinstance(result, tuple) else (result,))
-                   if isinstance(a, np.ndarray)]
+                  if isinstance(a, np.ndarray)]
         for array in arrays:
             array.flags.writeable = False
-        with _SOLAR_MEMO_LOCK:
-            if key not in _SOLAR_MEMO:
-                _SOLAR_MEMO[key] = (result, sum(a.nbytes for a in arrays))
-                _solar_memo_held[0] += _SOLAR_MEMO[key][1]
-            while _solar_memo_held[0] > _SOLAR_MEMO_BYTES and len(_SOLAR_MEMO) > 1:
-                _solar_memo_held[0] -= _SOLAR_MEMO.popitem(last=False)[1][1]
+        _SOLAR_MEMO.put(key, result, sum(a.nbytes for a in arrays))
         return result
     return memoised
 
