@@ -567,6 +567,45 @@ def test_dates(test: Test, year: int) -> tuple[date, date, date]:
     return first, first + timedelta(days=test.warmup_days), first + timedelta(days=test.days - 1)
 
 
+def window_config(config: Config, first: date, last: date) -> Config:
+    """``config`` simulating only the days ``first``..``last`` and the warm-up days before them.
+
+    Each test whose evaluated days reach into the window keeps those days,
+    led by its own ``warmup_days``, so that they start from the same kind of
+    state as in a run of the whole period; the other tests are dropped and
+    each period is cut to its remaining tests. A run then costs the window,
+    not the whole period (the decision's test week, the held-out days).
+
+    Raises
+    ------
+    BpsflowError
+        When no test evaluates a day of the window.
+    """
+    year = config.model.year
+    tests, spans = [], {}
+    for test in config.model.tests:
+        _, evaluated, end = test_dates(test, year)
+        kept_first, kept_last = max(evaluated, first), min(end, last)
+        if kept_first > kept_last:
+            continue
+        # never before the test's own first day: its warm-up days run in its own mode
+        start = kept_first - timedelta(days=test.warmup_days)
+        tests.append(test.model_copy(update={
+            "start": f"{start:%m-%d}", "days": (kept_last - start).days + 1,
+            "warmup_days": (kept_first - start).days}))
+        low, high = spans.get(test.period, (start, kept_last))
+        spans[test.period] = (min(low, start), max(high, kept_last))
+    if not tests:
+        raise BpsflowError(f"days {first:%m-%d}..{last:%m-%d}: no test of model.tests evaluates "
+                           "any of them", source=config.source)
+    trimmed = config.model_copy(deep=True)
+    trimmed.model.periods = [period.model_copy(update={"start": f"{spans[period.name][0]:%m-%d}",
+                                                       "end": f"{spans[period.name][1]:%m-%d}"})
+                             for period in config.model.periods if period.name in spans]
+    trimmed.model.tests = tests
+    return trimmed
+
+
 # Loading ---------------------------------------------------------------
 
 _UNION_TAGS = {"uniform", "normal", "beta", "lognormal", "triangular", "discrete",

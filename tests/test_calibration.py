@@ -333,6 +333,10 @@ def test_cli_calibrate_writes_the_documented_files(tmp_path):
     assert models == {"prior", "bayes_gp", "bayes_physical", "deterministic_physical"}
     posterior = pd.read_parquet(out / "posterior.parquet")
     assert len(posterior) == 2 * 150
+    # the physical check re-runs the held-out days after their warm-up, not the whole period
+    design_times = pd.read_parquet(out / "design" / "results.parquet")["timestamp"]
+    rerun_times = pd.read_parquet(out / "posterior_runs" / "results.parquet")["timestamp"]
+    assert rerun_times.max() == design_times.max() and rerun_times.min() > design_times.min()
     assert {"chain", "draw", "glazing_dirt_correction", "noise_std"} <= set(posterior.columns)
 
 

@@ -160,3 +160,32 @@ def test_extends_merges_sections_and_parameters_by_name(tmp_path):
     assert config.model.idf == base.model.idf                 # base paths resolved at the base
     assert config.run_dir == base.run_dir
     assert [p.name for p in config.parameters][:3] == [p.name for p in base.parameters][:3]
+
+
+def test_a_window_keeps_the_tests_that_evaluate_its_days_each_after_its_warm_up():
+    """Two tests of one season reach into the window, the other season's do not: each kept test
+    evaluates only its days of the window, after its own warm-up days; its period is cut to it."""
+    from datetime import date
+
+    from bpsflow.config import period_dates, test_dates, window_config
+
+    config = load_config(I600)
+    year = config.model.year
+    first, last = date(year, 7, 15), date(year, 7, 21)
+    window = window_config(config, first, last)
+    originals = {t.name: t for t in config.model.tests}
+    kept = {t.name: t for t in window.model.tests}
+    assert set(kept) == {t.name for t in config.model.tests
+                         if test_dates(t, year)[1] <= last and test_dates(t, year)[2] >= first}
+    assert 2 <= len(kept) < len(originals)
+    for name, test in kept.items():
+        _, evaluated, end = test_dates(originals[name], year)
+        start, kept_evaluated, kept_end = test_dates(test, year)
+        assert (kept_evaluated, kept_end) == (max(evaluated, first), min(end, last))
+        assert test.warmup_days == originals[name].warmup_days
+        assert start >= test_dates(originals[name], year)[0]
+    assert [p.name for p in window.model.periods] == [kept[n].period for n in kept][:1]
+    assert period_dates(window.model.periods[0], year) == (
+        min(test_dates(t, year)[0] for t in kept.values()), last)
+    with pytest.raises(BpsflowError, match="no test of model.tests evaluates"):
+        window_config(config, date(year, 9, 1), date(year, 9, 7))

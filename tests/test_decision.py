@@ -224,11 +224,10 @@ def test_decision_runs_cover_the_week_and_its_warm_up_only(hydronic):
     calibration period: same evaluated days, a fraction of the simulated ones."""
     from datetime import date
 
-    from bpsflow.config import period_dates, test_dates
-    from bpsflow.decision.workflow import week_config
+    from bpsflow.config import period_dates, test_dates, window_config
 
     first, last = date(2017, 3, 20), date(2017, 3, 26)
-    week = week_config(hydronic, first, last)
+    week = window_config(hydronic, first, last)
     test = week.model.tests[0]
     start, evaluated, end = test_dates(test, week.model.year)
     assert (evaluated, end) == (first, last)

@@ -567,10 +567,11 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
 
     Chains run ``settings.parallel_chains`` at a time (one XLA device each).
     By default all at once only for tiny problems (up to 30 observations),
-    where compiling NumPyro's loops again for a second group (each call
-    compiles) costs more than the chains' work; otherwise one per core, since
-    more devices than cores slow every leapfrog step more than a second
-    compilation costs (``bench/results.json``, ``hydronic_nuts_chain_groups``).
+    where a step is too short to use more than one core; otherwise one after
+    another in one call (compiled once), each step's linear algebra spread
+    over the cores by XLA. On 2 cores one device per chain, or per core, slows
+    every leapfrog step more than it gains (``bench/results.json``,
+    ``hydronic_nuts_chain_groups``).
 
     Warm-up and sampling run (and are timed) separately; JIT compilation
     counts in the warm-up time. ``timed_warmup=False`` runs both in one call
@@ -586,8 +587,7 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
     elif settings.chain_method not in ("auto", "parallel"):
         method, group = settings.chain_method, chains
     else:
-        wanted = settings.parallel_chains or (
-            chains if len(data.y) <= _SMALL_PROBLEM else _cores())
+        wanted = settings.parallel_chains or (chains if len(data.y) <= _SMALL_PROBLEM else 1)
         method, group = "parallel", max(1, min(chains, devices, wanted))
         if group == 1:
             method, group = "sequential", chains
@@ -627,11 +627,6 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
 
 
 _SMALL_PROBLEM = 30
-
-
-def _cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
-        (os.cpu_count() or 1)
 
 
 def _run(mcmc, key, arrays: dict, init: dict | None, timed_warmup: bool) -> dict:

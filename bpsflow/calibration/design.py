@@ -301,8 +301,7 @@ def pair(config: Config, results: pd.DataFrame, measured: pd.DataFrame, outputs:
     rows = pd.concat(frames, ignore_index=True)
     observed_all = np.concatenate(observed)
     simulated_all = np.concatenate(simulated, axis=0)
-    day = rows["time"].dt.floor("D") if resolution == "daily" else \
-        (rows["time"] - pd.Timedelta(hours=1)).dt.floor("D")
+    day = row_days(rows, resolution)
     last_day = day.max()
     first_heldout = last_day - pd.Timedelta(days=holdout_days - 1)
     rows["split"] = np.where(day >= first_heldout, "heldout", "calibration")
@@ -313,6 +312,31 @@ def pair(config: Config, results: pd.DataFrame, measured: pd.DataFrame, outputs:
     paired = Paired(rows=rows, observed=observed_all, simulated=simulated_all,
                     instances=np.asarray(instances), resolution=resolution)
     return _drop_idle(config, paired, idle_fraction)
+
+
+def row_days(rows: pd.DataFrame, resolution: str) -> pd.Series:
+    """The day of each row (an hourly row ending at midnight belongs to the day before)."""
+    if resolution == "daily":
+        return rows["time"].dt.floor("D")
+    return (rows["time"] - pd.Timedelta(hours=1)).dt.floor("D")
+
+
+def resimulated(paired: Paired, reruns: Paired) -> Paired:
+    """``paired``'s rows with the simulations of ``reruns`` instead of its own.
+
+    ``reruns`` pairs other runs over days that include ``paired``'s (e.g. a
+    :func:`bpsflow.config.window_config` of the same config); its rows are
+    matched by test, output and time, so ``paired``'s selection of rows
+    (held-out split, idle rows dropped) is kept.
+    """
+    key = ["test", "output", "time"]
+    where = pd.MultiIndex.from_frame(reruns.rows[key]).get_indexer(
+        pd.MultiIndex.from_frame(paired.rows[key]))
+    if (where < 0).any():
+        missing = paired.rows.iloc[int(np.flatnonzero(where < 0)[0])]
+        raise BpsflowError(f"the re-runs have no {missing['output']} value at {missing['time']} "
+                           f"(test {missing['test']})")
+    return replace(paired, simulated=reruns.simulated[where], instances=reruns.instances)
 
 
 def _aggregate(config: Config, test: Test, output: str, hours: pd.DatetimeIndex,

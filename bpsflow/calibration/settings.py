@@ -132,8 +132,8 @@ class BayesSettings(_Strict):
     ``F Fᵀ``, one column of ``F`` per held-out run): at a given θ the emulator
     errs alike over many hourly rows, which per-row variances average away.
 
-    Chains run in parallel, ``parallel_chains`` at a time (default: all of
-    them for up to 30 observations, else one per CPU core).
+    Chains run ``parallel_chains`` at a time (default: all of them for up to
+    30 observations, else one after another, each using every core).
 
     ``likelihood``: ``exact`` is the Gaussian likelihood of the observations
     given the simulations with full covariances (one ``n × n`` Cholesky per

@@ -31,7 +31,7 @@ from bpsflow.calibration import design as design_module
 from bpsflow.calibration.design import Paired
 from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effects, standardise_unit
 from bpsflow.calibration.settings import CalibrationSettings, Scenario
-from bpsflow.config import Config, Parameter
+from bpsflow.config import Config, Parameter, window_config
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_user_text
 
@@ -338,17 +338,20 @@ def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSe
     samples = design_module.samples_frame(config, run.parameters, unit)
     console.print(f"[{run.scenario.name}] physical check: {len(samples)} run(s) "
                   f"({len(samples) - 1} posterior draws + the deterministic optimum)")
-    results = design_module.run_samples(config, samples, out_dir / POSTERIOR_RUNS_DIR,
+    priors = {resolution: design_module.pair(
+        config, design.results, measured, outputs, resolution, settings.holdout_days,
+        settings.idle_fraction, source).split("heldout") for resolution in ("daily", "hourly")}
+    # only the held-out days are scored: the re-runs simulate them after their tests'
+    # warm-up days, not the whole period
+    days = design_module.row_days(priors["daily"].rows, "daily")
+    window = window_config(config, days.min().date(), days.max().date())
+    results = design_module.run_samples(window, samples, out_dir / POSTERIOR_RUNS_DIR,
                                         backend=design.backend, jobs=jobs, fresh=True,
                                         show_progress=show_progress)
     records = []
-    for resolution in ("daily", "hourly"):
-        rerun = design_module.pair(config, results, measured, outputs, resolution,
-                                   settings.holdout_days, settings.idle_fraction,
-                                   source).split("heldout")
-        prior = design_module.pair(config, design.results, measured, outputs, resolution,
-                                   settings.holdout_days, settings.idle_fraction,
-                                   source).split("heldout")
+    for resolution, prior in priors.items():
+        rerun = design_module.resimulated(prior, design_module.pair(
+            window, results, measured, outputs, resolution, holdout_days=0, measured_source=source))
         run.physical[resolution], run.prior[resolution] = rerun, prior
         out = rerun.rows["output"].to_numpy()
         records += heldout.score("prior", resolution, prior.rows["output"].to_numpy(),

@@ -7,7 +7,7 @@ For one calibration (or every scenario's, ``--scenarios``):
    the values it held them at (their nominal values);
 2. re-run every draw on the physical model as it is (business as usual) and
    with the intervention's change, through the one simulation layer, over the
-   test week and its test's warm-up days only (:func:`week_config`);
+   test week and its test's warm-up days only (:func:`bpsflow.config.window_config`);
 3. per draw, the errors on the test week (measured minus business-as-usual
    prediction, per output) are permuted ``sampling.permutations`` times and
    added to the draw's intervention prediction (the same permutation for
@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 from rich.console import Console
 
-from bpsflow.config import Config, IdfTarget, Parameter, config_fingerprint, test_dates
+from bpsflow.config import Config, IdfTarget, Parameter, config_fingerprint, window_config
 from bpsflow.decision.intervention import Intervention, load_intervention, week_dates
 from bpsflow.decision.outcomes import counted_hours, outcome_values
 from bpsflow.decision.risk import (
@@ -157,36 +157,6 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                 description=f"{found.obj.where}: {edit.target.field} {found.nominal:g} -> {value:g}"))
             added[name] = float(value)
     return changed, added
-
-
-def week_config(config: Config, first, last) -> Config:
-    """``config`` simulating only the test week and the warm-up days before it.
-
-    The decision needs the week alone: its test's ``warmup_days`` (inside the
-    test's period) come before it, as in the calibration runs, so the week's
-    values start from the same kind of state. A run then costs the week, not
-    the whole calibration period (seed §4.4.2 re-runs the test week).
-    """
-    from datetime import timedelta
-
-    from bpsflow.config import Period, period_dates
-
-    periods = {p.name: p for p in config.model.periods}
-    for test in config.model.tests:
-        _, evaluated, end = test_dates(test, config.model.year)
-        if evaluated <= first and last <= end:
-            break
-    else:   # load_intervention has checked that some test covers the week
-        raise BpsflowError(f"week {first:%m-%d}..{last:%m-%d}: no test of the config covers it")
-    period_first, _ = period_dates(periods[test.period], config.model.year)
-    start = max(period_first, first - timedelta(days=test.warmup_days))
-    trimmed = config.model_copy(deep=True)
-    trimmed.model.periods = [Period(name=test.period, start=f"{start:%m-%d}",
-                                    end=f"{last:%m-%d}")]
-    trimmed.model.tests = [test.model_copy(update={
-        "start": f"{start:%m-%d}", "days": (last - start).days + 1,
-        "warmup_days": (first - start).days})]
-    return trimmed
 
 
 def _field_key(found) -> tuple[str, str, int]:
@@ -364,9 +334,10 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
         console.print(f"[yellow]{note}[/yellow]", highlight=False)
     backend = choose_backend(config, console.print).name
     first, last = week_dates(intervention, config)
-    week, changed_week = week_config(config, first, last), week_config(changed, first, last)
-    console.print(f"each draw runs {week.model.periods[0].start}..{last:%m-%d}: the test week "
-                  f"and its {week.model.tests[0].warmup_days} warm-up day(s)")
+    week, changed_week = window_config(config, first, last), window_config(changed, first, last)
+    console.print(f"each draw runs {min(t.start for t in week.model.tests)}..{last:%m-%d}: the "
+                  f"test week and its test's {max(t.warmup_days for t in week.model.tests)} "
+                  "warm-up day(s)")
     records = []
     for calibrated in calibrations:
         out_dir = calibrated.folder / DECISION_DIR / intervention.name
