@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from scipy import special, stats
 from typer.testing import CliRunner
 
@@ -338,6 +339,47 @@ def test_cli_calibrate_writes_the_documented_files(tmp_path):
     rerun_times = pd.read_parquet(out / "posterior_runs" / "results.parquet")["timestamp"]
     assert rerun_times.max() == design_times.max() and rerun_times.min() > design_times.min()
     assert {"chain", "draw", "glazing_dirt_correction", "noise_std"} <= set(posterior.columns)
+
+
+@pytest.mark.slow
+def test_decide_takes_the_physical_checks_runs_of_the_held_out_week(tmp_path):
+    """On the held-out days decide uses the check's runs of the same draws (none simulated
+    again) and decides exactly as when it simulates them; another week is simulated."""
+    config, measured, _ = _short_calibration_config(tmp_path)
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--no-progress", "--allow-unconverged"])
+    assert result.exit_code == 0, result.output
+    calibration = tmp_path / "run" / "calibration"
+    upgraded = next(p for p in yaml.safe_load(config.read_text())["parameters"]
+                    if p["name"] == "south_wall_insulation_conductivity")
+    upgraded["distribution"]["value"] /= 2
+    decision = calibration / "decision" / "thicker_insulation"
+
+    def decide(start: str) -> dict:
+        intervention = tmp_path / f"upgrade_{start}.yaml"
+        intervention.write_text(yaml.safe_dump({
+            "name": "thicker_insulation", "change": {"overlay": {"parameters": [upgraded]}},
+            "week": {"start": start, "days": 3},
+            "outcomes": [{"name": "heat", "output": "heating_power_w", "statistic": "total"}],
+            "rules": [{"name": "saves", "threshold": 0.5,
+                       "events": [{"outcome": "heat", "above": {"factor": 1.0}}]}],
+            # the draws the check re-ran (calibration.posterior_runs)
+            "sampling": {"posterior_draws": 10, "permutations": 20, "seed": 1}}))
+        result = CliRunner().invoke(app, ["decide", str(config), "--calibration", str(calibration),
+                                          "--intervention", str(intervention), "--no-progress"])
+        assert result.exit_code == 0, result.output
+        return {"output": result.output,
+                "decision": json.loads((decision / "decision.json").read_text())}
+
+    reused = decide("11-17")          # the held-out days (holdout_days 3, the test ends 11-19)
+    assert "its runs are used" in reused["output"]
+    assert not (decision / "runs_as_is").exists()
+    (calibration / "posterior_runs" / "window.json").unlink()
+    simulated = decide("11-17")
+    assert "its runs are used" not in simulated["output"]
+    assert (decision / "runs_as_is" / "results.parquet").is_file()
+    assert simulated["decision"]["rules"] == reused["decision"]["rules"]
+    assert "its runs are used" not in decide("11-14")["output"]
 
 
 @pytest.mark.slow

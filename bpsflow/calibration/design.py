@@ -34,7 +34,7 @@ import pandas as pd
 
 from bpsflow.alignment import align
 from bpsflow.calibration.settings import DEFAULT_VARIABLE_INPUTS, CalibrationSettings, Scenario
-from bpsflow.config import Config, Parameter, Test, test_dates
+from bpsflow.config import Config, Parameter, Test, config_fingerprint, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_parquet, write_parquet
@@ -42,6 +42,8 @@ from bpsflow.sampling import latin_hypercube_unit
 from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 
 DESIGN_DIR = "design"
+#: In a run directory: the config fingerprint of the runs it holds.
+CONFIG_FINGERPRINT_FILE = "config_fingerprint.txt"
 
 # ppf(0) and ppf(1) are infinite for unbounded marginals.
 _UNIT_EPS = 1e-9
@@ -133,8 +135,10 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
                 ) -> pd.DataFrame:
     """Run ``samples`` in ``run_dir`` (resuming finished instances) and return tidy results.
 
-    A run directory holding a different design is cleared first: instances are
-    recognised by number only, so old results must not mix with new samples.
+    A run directory holding a different design, or runs of another model,
+    parameters, outputs or tests (other days: :func:`bpsflow.config.config_fingerprint`),
+    is cleared first: instances are recognised by number only, so old results
+    must not mix with new samples.
     ``fresh`` always clears it.
 
     Raises
@@ -150,11 +154,16 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
 
     run_dir = Path(run_dir).resolve()
     previous = run_dir / SAMPLES_FILE
-    if run_dir.exists() and (fresh or not previous.is_file() or not _same_samples(
-            read_parquet(previous).set_index("instance"), samples)):
+    marker = run_dir / CONFIG_FINGERPRINT_FILE
+    fingerprint = config_fingerprint(config)
+    if run_dir.exists() and (
+            fresh or not previous.is_file() or not marker.is_file()
+            or marker.read_text().strip() != fingerprint
+            or not _same_samples(read_parquet(previous).set_index("instance"), samples)):
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     write_parquet(samples.reset_index(), previous, index=False)
+    marker.write_text(fingerprint + "\n")
     cfg = run_config(config, run_dir, backend)
     ensure_sequences(cfg)
     summary = run_ensemble(cfg, samples, get_backend(backend), show_progress=show_progress,

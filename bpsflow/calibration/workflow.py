@@ -33,11 +33,13 @@ from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effec
 from bpsflow.calibration.settings import CalibrationSettings, Scenario
 from bpsflow.config import Config, Parameter, window_config
 from bpsflow.errors import BpsflowError
-from bpsflow.files import read_user_text
+from bpsflow.files import read_parquet, read_user_text
 
 console = Console(stderr=True)
 
 POSTERIOR_RUNS_DIR = "posterior_runs"
+#: Beside the physical check's runs: the model section (days, tests) they simulated.
+RUNS_WINDOW_FILE = "window.json"
 PREDICTIVE_DRAWS = 200
 # Below this hold-out R² the emulator's error is a sizeable part of what it predicts, and
 # the user is told so (the calibration still runs: its hold-out error enters the likelihood).
@@ -348,6 +350,7 @@ def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSe
     results = design_module.run_samples(window, samples, out_dir / POSTERIOR_RUNS_DIR,
                                         backend=design.backend, jobs=jobs, fresh=True,
                                         show_progress=show_progress)
+    (out_dir / POSTERIOR_RUNS_DIR / RUNS_WINDOW_FILE).write_text(_window_record(window))
     records = []
     for resolution, prior in priors.items():
         rerun = design_module.resimulated(prior, design_module.pair(
@@ -372,6 +375,41 @@ def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSe
     run.heldout = (frame.sort_values(["resolution", "output", "_order"])
                    .drop(columns="_order").reset_index(drop=True))
     run.timings["physical_check_seconds"] = time.perf_counter() - started
+
+
+def _window_record(window: Config) -> str:
+    return json.dumps(window.model.model_dump(mode="json"), sort_keys=True)
+
+
+def checked_runs(folder: Path, window: Config, samples: pd.DataFrame) -> pd.DataFrame | None:
+    """The physical check's results of ``samples`` over ``window``, if it ran exactly those.
+
+    ``folder`` is a calibration's folder. The check re-runs the first
+    posterior draws over the held-out days; a later command that needs the
+    same draws over the same days (``decide`` on the held-out week) takes its
+    results instead of simulating them again. None when the days, the draws
+    or the parameter values differ in any way.
+    """
+    from bpsflow.sampling import SAMPLES_FILE
+    from bpsflow.simulation.rundir import read_results
+
+    runs = Path(folder) / POSTERIOR_RUNS_DIR
+    try:
+        if (runs / RUNS_WINDOW_FILE).read_text() != _window_record(window):
+            return None
+        done = read_parquet(runs / SAMPLES_FILE).set_index("instance")
+        results = read_results(runs)
+    except (OSError, ValueError, BpsflowError):
+        return None
+    wanted = samples.reset_index(drop=True)
+    done = done.iloc[:len(wanted)].reset_index(drop=True)
+    if len(done) < len(wanted) or sorted(done.columns) != sorted(wanted.columns) or not \
+            np.array_equal(done[wanted.columns].to_numpy(float), wanted.to_numpy(float)):
+        return None
+    results = results[results["instance"] < len(wanted)]
+    if results["instance"].nunique() != len(wanted):
+        return None
+    return results
 
 
 def holdout_error_factor(emulator: Emulator, row_output: np.ndarray) -> np.ndarray:

@@ -8,6 +8,8 @@ For one calibration (or every scenario's, ``--scenarios``):
 2. re-run every draw on the physical model as it is (business as usual) and
    with the intervention's change, through the one simulation layer, over the
    test week and its test's warm-up days only (:func:`bpsflow.config.window_config`);
+   when the week is the calibration's held-out days, its physical check has
+   already run the same draws as they are over the same days, and those runs are used;
 3. per draw, the errors on the test week (measured minus business-as-usual
    prediction, per output) are permuted ``sampling.permutations`` times and
    added to the draw's intervention prediction (the same permutation for
@@ -207,6 +209,7 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
                jobs: int | None, show_progress: bool, console: Console) -> dict:
     """Decision risk of the intervention for one calibration; writes ``decision.json`` and a figure."""
     from bpsflow.calibration.design import run_samples
+    from bpsflow.calibration.workflow import checked_runs
     from bpsflow.decision.report import plot_risks
     from bpsflow.files import write_json
 
@@ -218,8 +221,13 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
             changed_samples[parameter.name] = float(parameter.distribution.nominal)
     console.print(f"[{calibrated.name}] {len(samples)} posterior draws, each run as it is and "
                   f"with '{intervention.name}'")
-    as_is = run_samples(config, samples, out_dir / "runs_as_is", backend=backend, jobs=jobs,
-                        show_progress=show_progress)
+    as_is = checked_runs(calibrated.folder, config, samples)
+    if as_is is None:
+        as_is = run_samples(config, samples, out_dir / "runs_as_is", backend=backend, jobs=jobs,
+                            show_progress=show_progress)
+    else:
+        console.print(f"[{calibrated.name}] as it is: the calibration's physical check ran these "
+                      "draws over the same days; its runs are used")
     with_change = run_samples(changed, changed_samples, out_dir / "runs_intervention",
                               backend=backend, jobs=jobs, show_progress=show_progress)
     first, last = week_dates(intervention, config)
