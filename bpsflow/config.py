@@ -582,7 +582,8 @@ def window_config(config: Config, first: date, last: date) -> Config:
         When no test evaluates a day of the window.
     """
     year = config.model.year
-    tests, spans = [], {}
+    tests: list[Test] = []
+    spans: dict[str, tuple[date, date]] = {}
     for test in config.model.tests:
         _, evaluated, end = test_dates(test, year)
         kept_first, kept_last = max(evaluated, first), min(end, last)
