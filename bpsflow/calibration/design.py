@@ -37,7 +37,7 @@ from bpsflow.calibration.settings import DEFAULT_VARIABLE_INPUTS, CalibrationSet
 from bpsflow.config import Config, Parameter, Test, config_fingerprint, test_dates
 from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
 from bpsflow.errors import BpsflowError
-from bpsflow.files import read_parquet, write_parquet
+from bpsflow.files import read_parquet, write_parquet, write_text_atomic
 from bpsflow.sampling import latin_hypercube_unit
 from bpsflow.simulation.setpoints import COOLING_OFF_C, HEATING_OFF_C, day_setpoints
 
@@ -163,7 +163,7 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     write_parquet(samples.reset_index(), previous, index=False)
-    marker.write_text(fingerprint + "\n")
+    write_text_atomic(marker, fingerprint + "\n")
     cfg = run_config(config, run_dir, backend)
     ensure_sequences(cfg)
     summary = run_ensemble(cfg, samples, get_backend(backend), show_progress=show_progress,

@@ -33,7 +33,7 @@ from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effec
 from bpsflow.calibration.settings import CalibrationSettings, Scenario
 from bpsflow.config import Config, Parameter, window_config
 from bpsflow.errors import BpsflowError
-from bpsflow.files import read_parquet, read_user_text
+from bpsflow.files import read_parquet, read_user_text, write_text_atomic
 
 console = Console(stderr=True)
 
@@ -350,7 +350,7 @@ def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSe
     results = design_module.run_samples(window, samples, out_dir / POSTERIOR_RUNS_DIR,
                                         backend=design.backend, jobs=jobs, fresh=True,
                                         show_progress=show_progress)
-    (out_dir / POSTERIOR_RUNS_DIR / RUNS_WINDOW_FILE).write_text(_window_record(window))
+    write_text_atomic(out_dir / POSTERIOR_RUNS_DIR / RUNS_WINDOW_FILE, _window_record(window))
     records = []
     for resolution, prior in priors.items():
         rerun = design_module.resimulated(prior, design_module.pair(
