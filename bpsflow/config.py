@@ -917,7 +917,24 @@ def with_overlay(config: Config, overlay: Mapping[str, Any], source: Path,
         _, location, message = _first_problem(exc, merged)
         raise BpsflowError(f"{where}.{location}: {message}", source=source) from None
     checked.source = config.source
+    if isinstance(overlay.get("model"), Mapping):
+        _check_overlaid_model_files(checked.model, f"{where}.model", source)
     return checked
+
+
+def _check_overlaid_model_files(model: Model, where: str, source: Path) -> None:
+    """The model files an overlay names exist and hold IDF objects (before anything runs)."""
+    from bpsflow.simulation.idf_syntax import check_idf_file
+
+    files = [("idf", Path(model.idf))] + [(f"idf_objects[{i}]", Path(f))
+                                         for i, f in enumerate(model.idf_objects)]
+    for key, path in files:
+        if not path.is_file():
+            raise BpsflowError(f"{where}.{key}: IDF file not found: {path}", source=source)
+        try:
+            check_idf_file(path, f"{where}.{key}")
+        except BpsflowError as exc:
+            raise BpsflowError(str(exc), source=source) from None
 
 
 def _resolve_paths(config: Config, path: Path) -> Config:

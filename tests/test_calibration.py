@@ -353,12 +353,14 @@ def test_decide_takes_the_physical_checks_runs_of_the_held_out_week(tmp_path):
     upgraded = next(p for p in yaml.safe_load(config.read_text())["parameters"]
                     if p["name"] == "south_wall_insulation_conductivity")
     upgraded["distribution"]["value"] /= 2
-    decision = calibration / "decision" / "thicker_insulation"
+    decision = calibration / "decision" / "thicker_insulation_11_17"
 
     def decide(start: str) -> dict:
         intervention = tmp_path / f"upgrade_{start}.yaml"
+        # one name per week: a decision of the same name and other content is refused
         intervention.write_text(yaml.safe_dump({
-            "name": "thicker_insulation", "change": {"overlay": {"parameters": [upgraded]}},
+            "name": f"thicker_insulation_{start.replace('-', '_')}",
+            "change": {"overlay": {"parameters": [upgraded]}},
             "week": {"start": start, "days": 3},
             "outcomes": [{"name": "heat", "output": "heating_power_w", "statistic": "total"}],
             "rules": [{"name": "saves", "threshold": 0.5,
@@ -368,8 +370,9 @@ def test_decide_takes_the_physical_checks_runs_of_the_held_out_week(tmp_path):
         result = CliRunner().invoke(app, ["decide", str(config), "--calibration", str(calibration),
                                           "--intervention", str(intervention), "--no-progress"])
         assert result.exit_code == 0, result.output
-        return {"output": result.output,
-                "decision": json.loads((decision / "decision.json").read_text())}
+        return {"output": result.output, "decision": json.loads(
+            (decision.with_name(f"thicker_insulation_{start.replace('-', '_')}")
+             / "decision.json").read_text())}
 
     reused = decide("11-17")          # the held-out days (holdout_days 3, the test ends 11-19)
     assert "its runs are used" in reused["output"]
@@ -666,3 +669,32 @@ def test_known_correlated_error_is_the_gaussian_with_its_covariance_added(likeli
     assert density(factor) == pytest.approx(with_factor + prior_terms, rel=1e-4)
     without = stats.multivariate_normal(mean, cov).logpdf(y)
     assert density(None) == pytest.approx(without + prior_terms, rel=1e-4)
+
+
+def test_every_scenario_is_checked_before_the_design_runs(tmp_path):
+    """A scenario output no test reports, one the measured file lacks, or one listed twice
+    is refused before any simulation (they once failed after the previous scenario's NUTS,
+    or counted every observation twice)."""
+    config, measured, _ = _short_calibration_config(tmp_path, scenarios=True)
+    raw = yaml.safe_load(config.read_text())
+
+    def calibrate_with(scenario: dict, measured_file: Path = measured) -> str:
+        raw["calibration"]["scenarios"] = [raw["calibration"]["scenarios"][0], scenario]
+        (tmp_path / "changed").mkdir(exist_ok=True)
+        changed = write_config(tmp_path / "changed", raw)
+        result = CliRunner().invoke(app, ["calibrate", str(changed), "--measured",
+                                          str(measured_file), "--scenarios", "--no-progress"])
+        assert result.exit_code == 2, result.output
+        assert not (tmp_path / "changed" / "run" / "calibration").exists()
+        return " ".join(result.output.split())
+
+    untested = calibrate_with({"name": "D-C", "outputs": ["heating_power_w", "cooling_power_w"]})
+    assert "calibration.scenarios (D-C).outputs[1]" in untested and "not an output of any test" in untested
+    twice = calibrate_with({"name": "D-H", "outputs": ["heating_power_w", "heating_power_w"]})
+    assert "heating_power_w listed more than once" in twice
+    frame = pd.read_csv(measured)
+    without = tmp_path / "no_temperature.csv"
+    frame.drop(columns=["zone_air_temperature_c"]).to_csv(without, index=False)
+    lacking = calibrate_with({"name": "D-ET", "outputs": ["heating_power_w",
+                                                         "zone_air_temperature_c"]}, without)
+    assert "no_temperature.csv" in lacking and "zone_air_temperature_c" in lacking

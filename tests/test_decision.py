@@ -234,3 +234,103 @@ def test_decision_runs_cover_the_week_and_its_warm_up_only(hydronic):
     assert test.warmup_days == hydronic.model.tests[0].warmup_days
     assert period_dates(week.model.periods[0], week.model.year) == (start, last)
     assert len(week.model.tests) == 1 and week.parameters == hydronic.parameters
+
+
+def test_unreadable_intervention_yaml_is_named_not_an_internal_error(tmp_path, hydronic):
+    assert "not valid YAML" in _bad(tmp_path, "name: x\nchange: [unclosed\n", hydronic)
+    repeated = _bad(tmp_path, lambda t: t + "\nname: again\n", hydronic)
+    assert "bad.yaml" in repeated and "name" in repeated
+
+
+def test_overlay_may_only_give_known_parameters_a_value(tmp_path, hydronic):
+    """A new parameter name would stack a second change on a field; a distribution would
+    leave the intervention's value undecided (each draw kept its calibrated one)."""
+    def overlay(parameter: str, distribution: str):
+        return lambda t: t.replace("change:\n", (
+            "change:\n  overlay:\n    parameters:\n"
+            f"    - {{name: {parameter}, group: infiltration, mode: relative, "
+            f"distribution: {distribution}, targets: [{{object: "
+            "'ZoneInfiltration:EffectiveLeakageArea', name: '*', "
+            "field: Effective Air Leakage Area}]}\n"))
+    unknown = _bad(tmp_path, overlay("tighter_envelope", "{type: constant, value: 0.5}"),
+                   hydronic)
+    assert "unknown parameter 'tighter_envelope'" in unknown and "change.edits" in unknown
+    spread = _bad(tmp_path, overlay("leakage_area", "{type: uniform, lower: 0.4, upper: 0.6}"),
+                  hydronic)
+    assert "'leakage_area'" in spread and "constant" in spread
+
+
+def test_an_overlaid_calibrated_parameter_takes_the_interventions_value(tmp_path, hydronic):
+    """The draws carry every calibrated input; the one the intervention sets must not keep
+    its posterior value in the changed runs (it once did, silently)."""
+    from bpsflow.decision.workflow import intervention_config, overlaid_parameters
+
+    path = tmp_path / "sealed.yaml"
+    path.write_text((CONFIGS / "hydronic_intervention.yaml").read_text().replace(
+        "change:\n", "change:\n  overlay:\n    parameters:\n"
+        "    - {name: leakage_area, group: infiltration, mode: relative, distribution: "
+        "{type: constant, value: 0.5}, targets: [{object: 'ZoneInfiltration:EffectiveLeakageArea', "
+        "name: '*', field: Effective Air Leakage Area}]}\n"))
+    changed, _ = intervention_config(hydronic, load_intervention(path, hydronic), path)
+    assert [p.name for p in overlaid_parameters(hydronic, changed)] == ["leakage_area"]
+    assert changed.parameter("leakage_area").distribution.nominal == 0.5
+
+
+def test_discomfort_needs_a_temperature_and_an_edit_a_consistent_range(tmp_path, hydronic):
+    on_energy = _bad(tmp_path, lambda t: t.replace("output: meeting_room_air_temperature_c",
+                                                   "output: heating_kwh"), hydronic)
+    assert "discomfort" in on_energy and "°C" in on_energy and "heating_kwh" in on_energy
+    crossed = _bad(tmp_path, lambda t: t.replace("add: -5\n    minimum: 25",
+                                                 "add: -5\n    minimum: 25\n    maximum: 20",
+                                                 1), hydronic)
+    assert "change.edits[0]" in crossed and "above maximum" in crossed
+
+
+def test_a_setpoint_parameter_must_give_a_room_setpoint(hydronic):
+    from bpsflow.decision.workflow import _setpoints
+
+    samples = pd.DataFrame({"setpoint_meeting_room": [0.5], "glazing_u_value": [1.0]})
+    fine = Outcome(name="d", output="meeting_room_air_temperature_c", statistic="discomfort",
+                   setpoint=Setpoint(parameter="setpoint_meeting_room"))
+    assert _setpoints(fine, hydronic, samples)[0] == pytest.approx(21.5)
+    wrong = fine.model_copy(update={"setpoint": Setpoint(parameter="glazing_u_value")})
+    with pytest.raises(BpsflowError, match="not a room temperature setpoint"):
+        _setpoints(wrong, hydronic, samples)
+
+
+def test_a_calibration_record_without_parameters_or_with_bad_draws_is_refused(tmp_path,
+                                                                            hydronic):
+    import json
+
+    from bpsflow.config import config_fingerprint
+    from bpsflow.decision.workflow import read_calibration
+
+    folder = tmp_path / "calibration"
+    folder.mkdir()
+    good = {"parameters": [{"name": "leakage_area"}],
+            "config": {"fingerprint": config_fingerprint(hydronic)}}
+    pd.DataFrame({"leakage_area": [1.0, 1.2]}).to_parquet(folder / "posterior.parquet")
+    for record in ([1, 2], {"parameters": []}, {"parameters": "glazing"}, {}):
+        (folder / "calibration.json").write_text(json.dumps(record))
+        with pytest.raises(BpsflowError, match="'parameters' lists"):
+            read_calibration(folder, hydronic)
+    (folder / "calibration.json").write_text(json.dumps(good))
+    for column in ([], [1.0, float("nan")], [1.0, -3.0]):
+        pd.DataFrame({"leakage_area": column}, dtype=float).to_parquet(folder / "posterior.parquet")
+        with pytest.raises(BpsflowError, match="posterior.parquet"):
+            read_calibration(folder, hydronic)
+
+
+def test_a_decision_of_another_intervention_with_the_same_name_is_kept(tmp_path, hydronic):
+    import json
+
+    from bpsflow.decision.workflow import _check_earlier_decision, intervention_fingerprint
+
+    intervention = load_intervention(CONFIGS / "hydronic_intervention.yaml", hydronic)
+    fingerprint = intervention_fingerprint(intervention)
+    (tmp_path / "decision.json").write_text(json.dumps({"intervention_fingerprint": fingerprint}))
+    _check_earlier_decision(tmp_path, fingerprint, Path("x.yaml"))        # the same file again
+    other = intervention.model_copy(update={"week": intervention.week.model_copy(
+        update={"days": 6})})
+    with pytest.raises(BpsflowError, match="same name whose content differs"):
+        _check_earlier_decision(tmp_path, intervention_fingerprint(other), Path("x.yaml"))

@@ -113,7 +113,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
         scenarios = [(settings.scenario(workflow.measured_outputs(config, measured)),
                       "calibration")]
     for scenario, where in scenarios:
-        workflow.check_scenario(config, scenario, where)
+        workflow.check_scenario(config, scenario, where, measured, Path(measured_path))
     if method == "bayes":
         from bpsflow.calibration.bayes import configure_jax
 

@@ -206,6 +206,14 @@ class Scenario(_Strict):
     resolution: Resolution = "daily"
     variable_inputs: list[str] | None = None
 
+    @model_validator(mode="after")
+    def _distinct_outputs(self) -> Scenario:
+        repeated = sorted({o for o in self.outputs if self.outputs.count(o) > 1})
+        if repeated:
+            # each observation would count twice and the posterior be too narrow
+            raise ValueError(f"outputs: {', '.join(repeated)} listed more than once")
+        return self
+
 
 class CalibrationSettings(_Strict):
     """The ``calibration:`` section. See the module docstring for an example.
@@ -239,7 +247,9 @@ class CalibrationSettings(_Strict):
     def _check(self) -> CalibrationSettings:
         names = [s.name for s in self.scenarios]
         if len(set(names)) != len(names):
-            raise ValueError("scenarios: scenario names must be unique")
+            repeated = sorted({n for n in names if names.count(n) > 1})
+            raise ValueError(f"scenarios: scenario names must be unique ({', '.join(repeated)} "
+                             "repeated)")
         for where, inputs in [("variable_inputs", self.variable_inputs)] + [
                 (f"scenarios ({s.name}).variable_inputs", s.variable_inputs)
                 for s in self.scenarios]:

@@ -101,11 +101,21 @@ def default_outputs(config: Config) -> list[str]:
     return seen
 
 
-def check_scenario(config: Config, scenario: Scenario, where: str) -> None:
+def check_scenario(config: Config, scenario: Scenario, where: str,
+                   measured: pd.DataFrame | None = None,
+                   measured_source: Path | None = None) -> None:
+    """Refuse, before any run, a scenario output the config, its tests or the data lack."""
+    reported = default_outputs(config)
     for i, output in enumerate(scenario.outputs):
         if output not in config.outputs:
             raise BpsflowError(f"{where}.outputs[{i}]: unknown output '{output}', expected one "
                                f"of {sorted(config.outputs)}", source=config.source)
+        if output not in reported:
+            raise BpsflowError(f"{where}.outputs[{i}]: '{output}' is not an output of any test "
+                               f"in model.tests (they report {reported})", source=config.source)
+        if measured is not None and output not in measured.columns:
+            raise BpsflowError(f"no column {output}, which {where} calibrates on",
+                               source=measured_source)
 
 
 def prepare_design(config: Config, settings: CalibrationSettings, design_dir: Path,

@@ -37,6 +37,7 @@ from typing import Literal
 
 import numpy as np
 import pandas as pd
+import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from bpsflow.config import Config, IdfTarget, SafeName
@@ -69,6 +70,8 @@ class Edit(_Strict):
     @model_validator(mode="after")
     def _one_change(self) -> Edit:
         _exactly_one(self, ("set", "add", "multiply"), "give exactly one of set, add or multiply")
+        if self.minimum is not None and self.maximum is not None and self.minimum > self.maximum:
+            raise ValueError(f"minimum ({self.minimum:g}) is above maximum ({self.maximum:g})")
         return self
 
 
@@ -185,11 +188,11 @@ class Intervention(_Strict):
     @model_validator(mode="after")
     def _names(self) -> Intervention:
         names = [o.name for o in self.outcomes]
-        if len(set(names)) != len(names):
-            raise ValueError("outcomes: names must be unique")
         rules = [r.name for r in self.rules]
-        if len(set(rules)) != len(rules):
-            raise ValueError("rules: names must be unique")
+        for key, listed in (("outcomes", names), ("rules", rules)):
+            repeated = sorted({n for n in listed if listed.count(n) > 1})
+            if repeated:
+                raise ValueError(f"{key}: names must be unique ({', '.join(repeated)} repeated)")
         for i, rule in enumerate(self.rules):
             for j, event in enumerate(rule.events):
                 if event.outcome not in names:
@@ -214,7 +217,10 @@ def load_intervention(path: Path, config: Config) -> Intervention:
     path = Path(path)
     if not path.is_file():
         raise BpsflowError(f"intervention file not found: {path}")
-    raw = parse_yaml(read_user_text(path, "an intervention file (YAML)"))
+    try:
+        raw = parse_yaml(read_user_text(path, "an intervention file (YAML)"))
+    except yaml.YAMLError as exc:
+        raise BpsflowError(f"not valid YAML: {exc}", source=path) from None
     if not isinstance(raw, dict):
         raise BpsflowError("expected a mapping with name, change, week, outcomes and rules",
                            source=path)
@@ -228,19 +234,34 @@ def load_intervention(path: Path, config: Config) -> Intervention:
             raise BpsflowError(f"outcomes[{i}] ({outcome.name}).output: unknown output "
                                f"'{outcome.output}', expected one of {sorted(config.outputs)}",
                                source=path)
+        unit = (config.outputs[outcome.output].unit or "").strip()
+        if outcome.statistic == "discomfort" and unit.upper() not in ("C", "°C", "DEGC"):
+            raise BpsflowError(f"outcomes[{i}] ({outcome.name}): discomfort counts degree-hours "
+                               f"under a setpoint, so its output must be a temperature in °C; "
+                               f"'{outcome.output}' is in {unit or 'no unit'}", source=path)
         if outcome.setpoint is not None and outcome.setpoint.parameter is not None:
             names = [p.name for p in config.parameters]
             if outcome.setpoint.parameter not in names:
                 raise BpsflowError(f"outcomes[{i}] ({outcome.name}).setpoint.parameter: unknown "
                                    f"parameter '{outcome.setpoint.parameter}'", source=path)
     week_start, week_end = week_dates(intervention, config, path)
-    covered = False
+    covering = []
     for test in config.model.tests:
         _, first, last = test_dates(test, config.model.year)
-        covered |= first <= week_start and week_end <= last
-    if not covered:
+        if first <= week_start and week_end <= last:
+            covering.append(test)
+    if not covering:
+        spans = ", ".join(f"{t.name} {d[1]:%m-%d}..{d[2]:%m-%d}" for t in config.model.tests
+                          for d in [test_dates(t, config.model.year)])
         raise BpsflowError(f"week: {week_start:%m-%d}..{week_end:%m-%d} is not inside the "
-                           f"evaluated days of any test of the config", source=path)
+                           f"evaluated days of any test of the config (evaluated: {spans})",
+                           source=path)
+    for i, outcome in enumerate(intervention.outcomes):
+        if not any(outcome.output in test.outputs for test in covering):
+            raise BpsflowError(
+                f"outcomes[{i}] ({outcome.name}).output: no test evaluating the week outputs "
+                f"'{outcome.output}' (test {', '.join(t.name for t in covering)} outputs "
+                f"{sorted({o for t in covering for o in t.outputs})})", source=path)
     _every_outcome_counts_hours(intervention, week_start, week_end, path)
     return intervention
 

@@ -49,6 +49,8 @@ from bpsflow.files import read_parquet
 
 DECISION_DIR = "decision"
 DECISION_FILE = "decision.json"
+#: Plausible room heating setpoints, °C: a setpoint parameter outside gives no comfort bound.
+SETPOINT_RANGE_C = (5.0, 35.0)
 
 
 @dataclass
@@ -75,6 +77,11 @@ def read_calibration(folder: Path, config: Config) -> Calibrated:
         record = json.loads(record_path.read_text())
     except (OSError, ValueError) as exc:
         raise BpsflowError(f"cannot read {record_path}: {exc}") from None
+    if not isinstance(record, dict) or not isinstance(record.get("parameters"), list) or not \
+            record["parameters"] or not all(isinstance(p, dict) and isinstance(p.get("name"), str)
+                                            for p in record["parameters"]):
+        raise BpsflowError(f"{record_path}: expected the record 'bpsflow calibrate' writes, a "
+                           "mapping whose 'parameters' lists the calibrated parameters by name")
     if not posterior_path.is_file():
         raise BpsflowError(f"--calibration: no {POSTERIOR_FILE} in {folder}: a decision needs "
                            f"a Bayesian calibration's posterior (method bayes)")
@@ -96,6 +103,17 @@ def read_calibration(folder: Path, config: Config) -> Calibrated:
     if missing:
         raise BpsflowError(f"{posterior_path}: no column for calibrated parameter(s) "
                            f"{', '.join(missing)}")
+    if draws.empty:
+        raise BpsflowError(f"{posterior_path}: no posterior draws (0 rows)")
+    for name in names:
+        values = pd.to_numeric(draws[name], errors="coerce").to_numpy(dtype=float)
+        low, high = (float(v) for v in known[name].distribution.ppf(np.array([0.0, 1.0])))
+        outside = ~np.isfinite(values) | (values < low - 1e-9 * max(1.0, abs(low))) | \
+            (values > high + 1e-9 * max(1.0, abs(high)))
+        if outside.any():
+            raise BpsflowError(f"{posterior_path}: column {name}: {int(outside.sum())} draw(s) "
+                               f"are not numbers within the parameter's support "
+                               f"[{low:g}, {high:g}] (first: {values[outside][0]!r})")
     return Calibrated(folder=folder, name=record.get("scenario", {}).get("name", folder.name),
                       record=record, draws=draws, parameters=names)
 
@@ -113,6 +131,7 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
     changed = with_overlay(config, intervention.change.overlay, source,
                            where="change.overlay") if intervention.change.overlay else \
         config.model_copy(deep=True)
+    _check_overlaid_parameters(config, changed, source)
     added: dict[str, float] = {}
     for i, edit in enumerate(intervention.change.edits):
         probe = changed.model_copy(deep=True)
@@ -161,6 +180,36 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
     return changed, added
 
 
+def overlaid_parameters(config: Config, changed: Config) -> list[Parameter]:
+    """The parameters the intervention's overlay redefines (same name, another definition)."""
+    before = {p.name: p.model_dump(mode="json") for p in config.parameters}
+    return [p for p in changed.parameters
+            if p.name in before and p.model_dump(mode="json") != before[p.name]]
+
+
+def _check_overlaid_parameters(config: Config, changed: Config, source: Path) -> None:
+    """Refuse an overlay that adds a parameter, or gives one a distribution instead of a value.
+
+    A new name would stack a second change on fields another parameter already
+    sets (``change.edits`` changes a field no parameter sets); a distribution
+    would leave the intervention's value undecided, and every draw keeps its
+    calibrated value.
+    """
+    known = [p.name for p in config.parameters]
+    for parameter in changed.parameters:
+        if parameter.name not in known:
+            raise BpsflowError(
+                f"change.overlay.parameters: unknown parameter '{parameter.name}' (expected one "
+                f"of {known}); to change a model field no parameter sets, use change.edits",
+                source=source)
+    for parameter in overlaid_parameters(config, changed):
+        if parameter.distribution.type != "constant":
+            raise BpsflowError(
+                f"change.overlay.parameters: '{parameter.name}' gets a "
+                f"{parameter.distribution.type} distribution; an intervention sets a value "
+                f"(distribution: {{type: constant, value: ...}})", source=source)
+
+
 def _field_key(found) -> tuple[str, str, int]:
     """One model field, whatever target pattern reached it: object type, name, position."""
     return (found.obj.type.lower(), found.obj.name.lower(), found.position)
@@ -188,7 +237,8 @@ def _week_series(results: pd.DataFrame, output: str, hour_ends: pd.DatetimeIndex
     return table.reindex(columns=hour_ends).to_numpy()
 
 
-def _setpoints(outcome, config: Config, samples: pd.DataFrame) -> np.ndarray | None:
+def _setpoints(outcome, config: Config, samples: pd.DataFrame,
+               source: Path | None = None) -> np.ndarray | None:
     """The comfort setpoint per draw (°C): fixed, or the field value the calibrated parameter gives."""
     from bpsflow.simulation.target_bounds import targeted_fields
     from bpsflow.simulation.targets import apply_mode
@@ -198,15 +248,29 @@ def _setpoints(outcome, config: Config, samples: pd.DataFrame) -> np.ndarray | N
     if outcome.setpoint.value_c is not None:
         return np.full(len(samples), outcome.setpoint.value_c)
     parameter = config.parameter(outcome.setpoint.parameter)
-    fields = [f for f in targeted_fields(config) if any(p is parameter for p in f.parameters)]
-    nominal = fields[0].nominal if fields and fields[0].nominal is not None else 0.0
-    return np.asarray(apply_mode(parameter.mode, nominal,
-                                 samples[parameter.name].to_numpy()), dtype=float)
+    fields = [f for f in targeted_fields(config) if any(p is parameter for p in f.parameters)
+              and f.nominal is not None]
+    if not fields:
+        raise BpsflowError(f"outcomes ({outcome.name}).setpoint.parameter: '{parameter.name}' "
+                           "sets no numeric model field, so it gives no setpoint temperature",
+                           source=source)
+    nominal = float(fields[0].nominal)  # type: ignore[arg-type]  # kept only when numeric
+    values: np.ndarray = np.array(apply_mode(parameter.mode, nominal,
+                                             samples[parameter.name].to_numpy()), dtype=np.float64)
+    # a room's heating setpoint; anything else is a parameter that is not one
+    if not np.all((values >= SETPOINT_RANGE_C[0]) & (values <= SETPOINT_RANGE_C[1])):
+        raise BpsflowError(
+            f"outcomes ({outcome.name}).setpoint.parameter: '{parameter.name}' gives "
+            f"{values.min():.3g}..{values.max():.3g} on {fields[0].where}, not a room "
+            f"temperature setpoint ({SETPOINT_RANGE_C[0]:g}-{SETPOINT_RANGE_C[1]:g} °C); name "
+            "the parameter of the zone's heating setpoint", source=source)
+    return values
 
 
 def decide_one(config: Config, calibrated: Calibrated, intervention: Intervention,
                changed: Config, measured: pd.DataFrame, out_dir: Path, *, backend: str,
-               jobs: int | None, show_progress: bool, console: Console) -> dict:
+               jobs: int | None, show_progress: bool, console: Console,
+               source: Path | None = None) -> dict:
     """Decision risk of the intervention for one calibration; writes ``decision.json`` and a figure."""
     from bpsflow.calibration.design import run_samples
     from bpsflow.calibration.workflow import checked_runs
@@ -214,43 +278,39 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
     from bpsflow.files import write_json
 
     sampling = intervention.sampling
+    if sampling.posterior_draws > len(calibrated.draws):
+        raise BpsflowError(f"sampling.posterior_draws: {sampling.posterior_draws} draws asked "
+                           f"for, but the posterior of {calibrated.folder} holds "
+                           f"{len(calibrated.draws)}; ask for at most that many", source=source)
     samples = _draw_samples(config, calibrated, sampling.posterior_draws)
     changed_samples = samples.copy()
+    # the intervention's own values win over the draws (a calibrated input it replaces)
+    overlaid = {p.name for p in overlaid_parameters(config, changed)}
     for parameter in changed.parameters:
-        if parameter.name not in changed_samples:
+        if parameter.name not in changed_samples or parameter.name in overlaid:
             changed_samples[parameter.name] = float(parameter.distribution.nominal)
-    console.print(f"[{calibrated.name}] {len(samples)} posterior draws, each run as it is and "
+    setpoints = {o.name: _setpoints(o, config, samples, source) for o in intervention.outcomes}
+    first, last = week_dates(intervention, config)
+    hour_ends = week_hour_ends(first, last)
+    outputs = sorted({o.output for o in intervention.outcomes})
+    observed = {output: measured[output].reindex(hour_ends).to_numpy() for output in outputs}
+    console.print(f"{_tag(calibrated)} {len(samples)} posterior draws, each run as it is and "
                   f"with '{intervention.name}'")
     as_is = checked_runs(calibrated.folder, config, samples)
     if as_is is None:
         as_is = run_samples(config, samples, out_dir / "runs_as_is", backend=backend, jobs=jobs,
                             show_progress=show_progress)
     else:
-        console.print(f"[{calibrated.name}] as it is: the calibration's physical check ran these "
+        console.print(f"{_tag(calibrated)} as it is: the calibration's physical check ran these "
                       "draws over the same days; its runs are used")
     with_change = run_samples(changed, changed_samples, out_dir / "runs_intervention",
                               backend=backend, jobs=jobs, show_progress=show_progress)
-    first, last = week_dates(intervention, config)
-    hour_ends = pd.date_range(pd.Timestamp(first) + pd.Timedelta(hours=1),
-                              pd.Timestamp(last) + pd.Timedelta(days=1), freq="h")
-    outputs = sorted({o.output for o in intervention.outcomes})
-    observed = {}
-    for output in outputs:
-        if output not in measured.columns:
-            raise BpsflowError(f"the measured data have no column {output}, which outcome(s) "
-                               f"of the intervention need for the test week")
-        values = measured[output].reindex(hour_ends)
-        if values.isna().any():
-            raise BpsflowError(f"the measured {output} misses {int(values.isna().sum())} hour(s) "
-                               f"of the test week {first:%m-%d}..{last:%m-%d}")
-        observed[output] = values.to_numpy()
     predicted_as_is = {o: _week_series(as_is, o, hour_ends) for o in outputs}
     predicted_change = {o: _week_series(with_change, o, hour_ends) for o in outputs}
     rng = np.random.default_rng(sampling.seed)
     draws, perms = len(samples), sampling.permutations
     projected = {o.name: np.empty((draws, perms)) for o in intervention.outcomes}
     reference = {o.name: np.empty((draws, perms)) for o in intervention.outcomes}
-    setpoints = {o.name: _setpoints(o, config, samples) for o in intervention.outcomes}
     masks = {o.name: counted_hours(hour_ends, o.hours) for o in intervention.outcomes}
     for j in range(draws):
         # one permutation per sample for every output of the draw: their timing stays joint
@@ -284,7 +344,9 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
             "implement": bool(probability <= rule.threshold),
             "decision_risk": float(decision_risk(probability, rule.threshold))})
     record = {
-        "intervention": intervention.name, "calibration": str(calibrated.folder),
+        "intervention": intervention.name,
+        "intervention_fingerprint": intervention_fingerprint(intervention),
+        "calibration": str(calibrated.folder),
         "scenario": calibrated.name,
         "week": [f"{first:%Y-%m-%d}", f"{last:%Y-%m-%d}"],
         "posterior_draws": draws, "permutations": perms, "outcomes_sampled": draws * perms,
@@ -301,6 +363,58 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
     write_json(out_dir / DECISION_FILE, record)
     record["figure"] = str(plot_risks(record, out_dir / "decision_risk.png"))
     return record
+
+
+def intervention_fingerprint(intervention: Intervention) -> str:
+    """A digest of everything the intervention file says (its schema-checked content)."""
+    import hashlib
+
+    return hashlib.sha256(intervention.model_dump_json().encode()).hexdigest()[:16]
+
+
+def _check_earlier_decision(out_dir: Path, fingerprint: str, source: Path) -> None:
+    """Refuse to overwrite the decision of another intervention that has the same name."""
+    path = out_dir / DECISION_FILE
+    if not path.is_file():
+        return
+    try:
+        earlier = json.loads(path.read_text()).get("intervention_fingerprint")
+    except (OSError, ValueError, AttributeError):
+        earlier = None
+    if earlier is not None and earlier != fingerprint:
+        raise BpsflowError(
+            f"name: {out_dir} holds the decision of an intervention of the same name whose "
+            f"content differs; give this one another name, or move that folder away to "
+            f"replace it", source=source)
+
+
+def _tag(calibrated: Calibrated) -> str:
+    """``[name]`` as text: a calibration's name printed as itself, not read as markup."""
+    from rich.markup import escape
+
+    return escape(f"[{calibrated.name}]")
+
+
+def week_hour_ends(first, last) -> pd.DatetimeIndex:
+    """The hour-ending stamps of the days ``first``..``last``."""
+    return pd.date_range(pd.Timestamp(first) + pd.Timedelta(hours=1),
+                         pd.Timestamp(last) + pd.Timedelta(days=1), freq="h")
+
+
+def _check_measured_week(measured: pd.DataFrame, outputs: list[str], first, last,
+                         source: Path) -> None:
+    """Refuse, before any run, measured data that do not cover the test week."""
+    hour_ends = week_hour_ends(first, last)
+    for output in outputs:
+        if output not in measured.columns:
+            raise BpsflowError(f"no column {output}, which outcome(s) of the intervention need "
+                               f"for the test week", source=source)
+        values = measured[output].reindex(hour_ends)
+        if values.isna().any():
+            gap = hour_ends[values.isna().to_numpy()]
+            raise BpsflowError(f"{output} misses {len(gap)} hour(s) of the test week "
+                               f"{first:%m-%d}..{last:%m-%d} (first: {gap[0]}); the week's "
+                               "hours must all be measured", source=source)
 
 
 def _summary(values: np.ndarray) -> dict[str, float]:
@@ -342,18 +456,29 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
         console.print(f"[yellow]{note}[/yellow]", highlight=False)
     backend = choose_backend(config, console.print).name
     first, last = week_dates(intervention, config)
-    week, changed_week = window_config(config, first, last), window_config(changed, first, last)
+    _check_measured_week(data.frame, sorted({o.output for o in intervention.outcomes}), first,
+                         last, Path(path))
+    week = window_config(config, first, last)
+    try:
+        changed_week = window_config(changed, first, last)
+    except BpsflowError as exc:
+        raise BpsflowError(f"change.overlay: with the change, {exc.message}",
+                           source=intervention_path) from None
     console.print(f"each draw runs {min(t.start for t in week.model.tests)}..{last:%m-%d}: the "
                   f"test week and its test's {max(t.warmup_days for t in week.model.tests)} "
                   "warm-up day(s)")
+    fingerprint = intervention_fingerprint(intervention)
+    for calibrated in calibrations:
+        _check_earlier_decision(calibrated.folder / DECISION_DIR / intervention.name,
+                                fingerprint, Path(intervention_path))
     records = []
     for calibrated in calibrations:
         out_dir = calibrated.folder / DECISION_DIR / intervention.name
         records.append(decide_one(week, calibrated, intervention, changed_week, data.frame, out_dir,
                                   backend=backend, jobs=jobs, show_progress=show_progress,
-                                  console=console))
+                                  console=console, source=Path(intervention_path)))
         for rule in records[-1]["rules"]:
-            console.print(f"[{calibrated.name}] {rule['name']}: p = "
+            console.print(f"{_tag(calibrated)} {rule['name']}: p = "
                           f"{rule['underperformance_probability']:.3f}, "
                           f"{'implement' if rule['implement'] else 'do not implement'}, decision "
                           f"risk {rule['decision_risk']:.3f}")
