@@ -84,3 +84,21 @@ def align(config: Config, results: pd.DataFrame, measured: pd.DataFrame, test: T
     return Aligned(test=test.name, output=output, timestamps=hours,
                    observed=observed.to_numpy(dtype=float), ensemble=wide.to_numpy(dtype=float),
                    instances=wide.columns.to_numpy())
+
+
+def check_coverage(config: Config, measured: pd.DataFrame,
+                   measured_source: Path | str | None = None,
+                   outputs: list[str] | None = None) -> None:
+    """Raise :func:`align`'s error now if ``measured`` lacks a column or hour a test needs.
+
+    Checked before anything runs, with the same messages as after the run.
+    ``outputs`` limits the check to those outputs (default: every test's).
+    """
+    for test in config.model.tests:
+        hours = evaluation_hours(test, config.model.year)
+        for output in test.outputs:
+            if outputs is not None and output not in outputs:
+                continue
+            placeholder = pd.DataFrame({"instance": 0, "test": test.name, "output": output,
+                                        "timestamp": hours, "value": 0.0})
+            align(config, placeholder, measured, test, output, measured_source)

@@ -405,6 +405,7 @@ def synth(config: Path = ConfigArg,
               "values that model can recover (room-weighted means of the fields)."),
           no_progress: bool = NoProgressOption) -> None:
     """Run a truth instance and write synthetic measurements (measured.csv)."""
+    from bpsflow.simulation.rundir import prepare_run_dir
     from bpsflow.synth import load_truth, synthesize, write_equivalent_truth
 
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
@@ -415,6 +416,7 @@ def synth(config: Path = ConfigArg,
     simpler = _load(equivalent_for, None) if equivalent_for is not None else None
     rd = _lock(cfg)
     out = out or rd / "truth"
+    prepare_run_dir(out, where="--out")
     path = synthesize(cfg, spec, out.resolve(), detailed=detailed)
     console.print(f"wrote {path}")
     if simpler is not None:
@@ -519,6 +521,7 @@ def sensitivity(
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar.")) -> None:
     """Morris screening (mu*, sigma) of the uncertain inputs, in RUN_DIR/morris (seed §3.4.8)."""
     from bpsflow import sensitivity as morris
+    from bpsflow.alignment import check_coverage
     from bpsflow.config import with_overrides
     from bpsflow.measured import plausibility_reference
     from bpsflow.simulation.backend import choose_backend
@@ -544,8 +547,14 @@ def sensitivity(
                            f"got {screen}")
     if screen_out is not None and screen is None:
         raise BpsflowError("--screen-out needs --screen N (how many inputs to keep per response)")
+    if kind == "raw" and measured is not None:
+        raise BpsflowError(f"--measured: {measured} is not used by --response raw (the "
+                           f"predictions alone); drop it, or use --response difference or "
+                           f"absolute to compare with it")
     _set_backend(cfg, backend)
     mcfg = morris.morris_config(cfg, trajectories, levels)
+    if screen is not None:
+        morris.check_screen_target(cfg, screen_out)
     observed = None
     if measured is not None:
         reference = plausibility_reference(cfg.run_dir.resolve())
@@ -554,7 +563,7 @@ def sensitivity(
         observed = _read_measured(measured, mcfg, required=_test_outputs(mcfg),
                                   reference=reference,
                                   allow_implausible=allow_implausible).frame
-        morris.check_measured(mcfg, observed, measured)
+        check_coverage(mcfg, observed, measured)
     chosen = choose_backend(mcfg, announce=err_console.print)
     _lock(cfg)
     samples = morris.prepare_morris(mcfg, chosen.name, announce=err_console.print)

@@ -789,6 +789,19 @@ def _read_raw(path: Path, seen: tuple[Path, ...]) -> dict:
     return _merge(base, raw)
 
 
+def config_chain(path: str | Path) -> list[Path]:
+    """The config file and every base it ``extends:``, resolved, the file first."""
+    chain = [Path(path).resolve()]
+    while True:
+        parent = _read_yaml(chain[-1]).get("extends")
+        if not isinstance(parent, str) or not parent.strip():
+            return chain
+        parent_path = (chain[-1].parent / parent).resolve()
+        if parent_path in chain or not parent_path.is_file():
+            return chain
+        chain.append(parent_path)
+
+
 def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
     """Read, validate and resolve a YAML config.
 

@@ -35,6 +35,8 @@ from typing import IO, Any
 import numpy as np
 import pandas as pd
 
+from bpsflow.errors import BpsflowError
+
 __all__ = ["inside", "jsonable", "read_parquet", "read_user_text", "save_figure", "write_bytes_atomic",
            "write_csv", "write_json", "write_npz", "write_parquet", "write_text_atomic"]
 
@@ -55,7 +57,6 @@ def read_user_text(path: str | os.PathLike, what: str) -> str:
         When the file is missing, is a folder, cannot be read, or is not UTF-8
         text (a binary or mis-encoded file); its content is never echoed.
     """
-    from bpsflow.errors import BpsflowError
 
     path = Path(path)
     if not path.exists():
@@ -79,7 +80,6 @@ def read_parquet(path: str | os.PathLike, **kwargs: Any) -> pd.DataFrame:
     copy cut short) is bad input like any other: the message names the file and
     what to do, and nothing else in the folder is touched.
     """
-    from bpsflow.errors import BpsflowError
 
     try:
         return pd.read_parquet(path, **kwargs)
@@ -311,7 +311,6 @@ def inside(root: str | os.PathLike, *parts: str | os.PathLike) -> Path:
     BpsflowError
         The path would lie outside ``root``, or a part holds a NUL or a line break.
     """
-    from bpsflow.errors import BpsflowError
 
     base = Path(root).resolve()
     text = [str(part) for part in parts]
@@ -326,10 +325,41 @@ def inside(root: str | os.PathLike, *parts: str | os.PathLike) -> Path:
     return target
 
 
+def check_writable_file(path: str | os.PathLike, where: str) -> Path:
+    """Refuse, before any work, a file path that cannot be written; create its folder.
+
+    ``where`` names the option or key the path came from, in the message.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise BpsflowError(f"{where}: {path} is a folder; expected a file path")
+    folder = path.parent
+    blocker = next((p for p in (folder, *folder.parents) if p.exists()), folder)
+    if not blocker.is_dir():
+        raise BpsflowError(f"{where}: cannot write {path}: {blocker} is a file; expected a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BpsflowError(f"{where}: cannot create {folder} ({exc.strerror}); expected a "
+                           f"folder bpsflow may write in") from None
+    if not os.access(folder, os.W_OK | os.X_OK) or (path.exists()
+                                                   and not os.access(path, os.W_OK)):
+        raise BpsflowError(f"{where}: cannot write {path}: no permission; expected a file "
+                           f"bpsflow may write")
+    return path
+
+
 def _atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> Path:
     """Call ``write`` on a binary temporary file beside ``path``, then move it into place."""
     path = Path(path)
-    descriptor, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    if path.is_dir():
+        raise BpsflowError(f"cannot write {path}: it is a folder; expected a file path")
+    try:
+        descriptor, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
+                                            dir=path.parent)
+    except OSError as exc:
+        raise BpsflowError(f"cannot write {path}: {exc.strerror or type(exc).__name__} in "
+                           f"{path.parent}; expected a folder bpsflow may write in") from None
     temporary = Path(name)
     try:
         with os.fdopen(descriptor, "wb") as handle:

@@ -87,6 +87,9 @@ PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
     "K": (200.0, 380.0), "%": (-5.0, 105.0)}
 #: Ceiling of a power or energy: this many times the ensemble's largest magnitude.
 RELATIVE_CEILING = 20.0
+#: Floor of a power or energy the simulations never make negative: minus this share of their
+#: largest magnitude (meter noise around zero passes, a reversed sign does not).
+NEGATIVE_SHARE = 0.1
 
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 _NON_FINITE = re.compile(r"^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
@@ -549,8 +552,14 @@ def plausible_range(config: Config, column: str, reference: pd.DataFrame | None
         scale = _ensemble_scale(reference, column)
         if scale > 0:
             ceiling = RELATIVE_CEILING * scale
-            return -ceiling, ceiling, (f"{RELATIVE_CEILING:g} × the largest simulated "
-                                       f"magnitude {scale:.4g}")
+            why = f"{RELATIVE_CEILING:g} × the largest simulated magnitude {scale:.4g}"
+            if float(np.min(_ensemble_values(reference, column))) >= 0:
+                # a heating or cooling rate the model never makes negative: measured values
+                # well below zero are a sign convention (cooling as negative heating) or a fault
+                return (-NEGATIVE_SHARE * scale, ceiling,
+                        f"{why}; the simulations are never negative, so at least "
+                        f"-{NEGATIVE_SHARE:g} × that magnitude")
+            return -ceiling, ceiling, why
     return -np.inf, np.inf, "unchecked"
 
 

@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -64,6 +63,7 @@ from bpsflow.distributions import Constant
 from bpsflow.errors import BpsflowError
 from bpsflow.files import inside, jsonable, read_parquet, write_csv, write_json, write_text_atomic
 from bpsflow.sampling import UNIT_DESIGN_FILE, Design, morris_unit, transform
+from bpsflow.simulation.rundir import move_aside
 
 MORRIS_DIR = "morris"
 SETTINGS_FILE = "morris_design.json"
@@ -208,11 +208,12 @@ def prepare_morris(config: Config, backend: str,
         changed = _differences(old, settings) if old else ["(no record of its settings)"]
         instances = run_dir / "instances"
         finished = len(list(instances.glob("*"))) if instances.is_dir() else 0
+        moved = move_aside(run_dir, [*_RUN_FILES, "instances", "figures"])
         announce(f"[yellow]the Morris design in {run_dir} was made with other settings "
                  f"({'; '.join(changed)}); drawing it again"
-                 + (f" and discarding its {finished} run instance(s)" if finished else "")
+                 + (f"; its {finished} run instance(s) and results were moved to {moved}"
+                    if finished else f"; the earlier design was moved to {moved}")
                  + "[/yellow]")
-        _clear(run_dir)
     design = morris_design(config)
     write_design(design, run_dir)
     ensure_sequences(config)
@@ -220,15 +221,6 @@ def prepare_morris(config: Config, backend: str,
                       yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False))
     write_json(settings_path, settings)
     return design.values
-
-
-def _clear(run_dir: Path) -> None:
-    """Remove a Morris run's own files (never anything else in the folder)."""
-    for name in _RUN_FILES:
-        (run_dir / name).unlink(missing_ok=True)
-    for folder in ("instances", "figures"):
-        if (run_dir / folder).is_dir():
-            shutil.rmtree(run_dir / folder)
 
 
 def read_unit_design(run_dir: Path) -> pd.DataFrame:
@@ -307,23 +299,6 @@ def window_responses(config: Config, results: pd.DataFrame,
             columns[name] = pd.Series(value, index=aligned.instances)
     return pd.DataFrame({name: series.reindex(instances) for name, series in columns.items()},
                         index=instances)
-
-
-def check_measured(config: Config, measured: pd.DataFrame,
-                   measured_source: Path | str | None = None) -> None:
-    """Raise alignment's error now if ``measured`` lacks a column or hour any test needs.
-
-    Checked before anything runs, with the same messages as after the run.
-    """
-    frames = []
-    for test in config.model.tests:
-        hours = evaluation_hours(test, config.model.year)
-        frames += [pd.DataFrame({"instance": 0, "test": test.name, "output": output,
-                                 "timestamp": hours, "value": 0.0}) for output in test.outputs]
-    placeholder = pd.concat(frames, ignore_index=True)
-    for test in config.model.tests:
-        for output in test.outputs:
-            align(config, placeholder, measured, test, output, measured_source)
 
 
 # Analysis ----------------------------------------------------------------
@@ -544,8 +519,9 @@ def screened_config(config: Config, indices: pd.DataFrame, top: int, out_path: P
         }
         fixed.append(entry)
     run_dir = Path(str(config.run_dir.resolve()) + "_screened")
+    # an empty list is refused in a config that extends another: it would remove nothing
     return {"extends": _relative(config.source, out_dir),
-            "parameters": fixed,
+            **({"parameters": fixed} if fixed else {}),
             "execution": {"run_dir": _relative(run_dir, out_dir)}}
 
 
@@ -554,6 +530,37 @@ def default_screen_path(config: Config) -> Path:
     if config.source is None:
         raise BpsflowError("screening needs a config read from a file (for 'extends:')")
     return config.source.with_name(f"{config.source.stem}_screened.yaml")
+
+
+#: The first line of a reduced config :func:`write_screened_config` writes (and may replace).
+SCREENED_HEADER = "# Morris screening of "
+
+
+def check_screen_target(config: Config, out_path: Path | None) -> Path:
+    """Where ``--screen`` writes, refused before any run if it would overwrite a user's file.
+
+    The config, every base it extends and any existing file that is not an
+    earlier reduced config (its first line :data:`SCREENED_HEADER`) are
+    refused; so is a path bpsflow cannot write.
+    """
+    from bpsflow.config import config_chain
+    from bpsflow.files import check_writable_file
+
+    out_path = Path(out_path or default_screen_path(config))
+    chain = config_chain(config.source) if config.source else []
+    if out_path.resolve() in chain:
+        raise BpsflowError(f"--screen-out: {out_path} is "
+                           + ("the config being screened" if out_path.resolve() == chain[0]
+                              else "a base config it extends")
+                           + "; expected another file (the reduced config extends it)")
+    if out_path.is_file():
+        with open(out_path, encoding="utf-8", errors="replace") as handle:
+            first = handle.readline()
+        if not first.startswith(SCREENED_HEADER):
+            raise BpsflowError(f"--screen-out: {out_path} exists and is not a reduced config "
+                               f"bpsflow wrote; expected a new file (or an earlier screening "
+                               f"result, which is replaced)")
+    return check_writable_file(out_path, "--screen-out")
 
 
 def write_screened_config(config: Config, indices: pd.DataFrame, top: int,
@@ -568,17 +575,14 @@ def write_screened_config(config: Config, indices: pd.DataFrame, top: int,
     """
     from bpsflow.config import load_config
 
-    out_path = Path(out_path or default_screen_path(config))
-    if out_path.resolve() == (config.source.resolve() if config.source else None):
-        raise BpsflowError(f"--screen-out: {out_path} is the config being screened; choose "
-                           f"another file")
+    out_path = check_screen_target(config, out_path)
     raw = screened_config(config, indices, top, out_path, indices_path)
-    kept = [n for n in dict.fromkeys(indices["parameter"])
-            if n not in {p["name"] for p in raw["parameters"]}]
+    fixed_names = [p["name"] for p in raw.get("parameters", [])]
+    kept = [n for n in dict.fromkeys(indices["parameter"]) if n not in fixed_names]
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    header = (f"# Morris screening of {config.source.name}: {len(kept)} input(s) kept (the top "
-              f"{top} by mu* of each response),\n# {len(raw['parameters'])} fixed at their "
+    header = (f"{SCREENED_HEADER}{config.source.name}: {len(kept)} input(s) kept (the top "
+              f"{top} by mu* of each response),\n# {len(fixed_names)} fixed at their "
               f"nominal value (see each one's provenance). Written by bpsflow sensitivity.\n")
     write_text_atomic(out_path, header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True))
     load_config(out_path)  # a reduced config that does not load must not go unnoticed
-    return out_path, kept, [p["name"] for p in raw["parameters"]]
+    return out_path, kept, fixed_names

@@ -212,8 +212,11 @@ def test_morris_design_is_redrawn_when_its_settings_change(case):
     (case.run_dir / "morris" / "instances" / "000001").mkdir(parents=True)
     redrawn = prepare_morris(morris_config(case, 2, 6), "surrogate", messages.append)
     assert len(messages) == 1 and "design.levels 4 → 6" in messages[0]
-    assert "discarding its 1 run instance" in messages[0]
+    assert "its 1 run instance(s) and results were moved to" in messages[0]
     assert not (case.run_dir / "morris" / "instances").exists()
+    # the finished runs of the earlier design are kept, not deleted
+    kept = list((case.run_dir / "morris" / "previous").glob("*/instances/000001"))
+    assert len(kept) == 1 and kept[0].is_dir()
     assert not redrawn.equals(first)
     with pytest.raises(BpsflowError, match="even number of levels"):
         morris_config(case, 2, 5)
@@ -270,3 +273,52 @@ def test_sensitivity_cli_bad_input_exits_2_before_running(tmp_path):
     assert "measured.csv" in result.output and "zone_air_temperature_c" in result.output
     assert "Traceback" not in result.output
     assert not (tmp_path / "run" / "morris" / "results.parquet").exists()
+
+
+def test_screening_keeping_every_input_writes_a_config_that_loads(case, tmp_path):
+    """--screen N at or above the number of inputs fixes nothing: no empty ``parameters``."""
+    names = [p.name for p in case.parameters]
+    indices = pd.DataFrame([{"response": "H-ST:heating_power_w", "parameter": name,
+                             "group": case.parameter(name).group, "mu": 0.0, "mu_star": 1.0,
+                             "mu_star_conf": 0.0, "sigma": 0.0, "rank": rank}
+                            for rank, name in enumerate(names, start=1)])
+    path, kept, fixed = write_screened_config(case, indices, top=len(names) + 5,
+                                              out_path=tmp_path / "all.yaml")
+    assert fixed == [] and kept == names
+    assert "parameters" not in yaml.safe_load(path.read_text())
+    assert [p.distribution for p in load_config(path).parameters] == \
+        [p.distribution for p in case.parameters]
+    # written again over its own earlier result: allowed (it is bpsflow's file)
+    write_screened_config(case, indices, top=2, out_path=path)
+
+
+def test_sensitivity_refuses_outputs_that_would_overwrite_a_users_file(tmp_path):
+    base = write_config(tmp_path, short_raw())
+    child = tmp_path / "child.yaml"
+    child.write_text("extends: case.yaml\n")
+    notes = tmp_path / "notes.yaml"
+    notes.write_text("my own notes\n")
+    runner = CliRunner()
+    for target, needle in ((base, "a base config it extends"), (child, "the config being screened"),
+                           (notes, "exists and is not a reduced config")):
+        before = target.read_text() if target.is_file() else None
+        result = runner.invoke(app, ["sensitivity", str(child), "--screen", "2", "--screen-out",
+                                     str(target), "--backend", "surrogate", "--no-progress"])
+        flat = " ".join(result.output.split())
+        assert result.exit_code == 2, result.output
+        assert "--screen-out" in flat and needle in flat, result.output
+        assert "Traceback" not in result.output
+        if before is not None:
+            assert target.read_text() == before
+        # refused before any run
+        assert not (tmp_path / "run" / "morris" / "samples.parquet").exists()
+
+
+def test_raw_response_refuses_a_measured_file_it_would_ignore(tmp_path):
+    config = write_config(tmp_path, short_raw())
+    measured = tmp_path / "measured.csv"
+    measured.write_text("timestamp,heating_power_w\n")
+    result = CliRunner().invoke(app, ["sensitivity", str(config), "--response", "raw",
+                                      "--measured", str(measured)])
+    assert result.exit_code == 2 and "--response raw" in " ".join(result.output.split())
+    assert not (tmp_path / "run" / "morris").exists()

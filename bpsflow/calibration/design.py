@@ -53,12 +53,13 @@ _UNIT_EPS = 1e-9
 # Calibration parameters
 
 
-def calibration_parameters(config: Config, settings: CalibrationSettings) -> list[Parameter]:
+def calibration_parameters(config: Config, settings: CalibrationSettings,
+                           key: str = "calibration.parameters") -> list[Parameter]:
     """The calibration parameters θ, in config order.
 
     ``settings.parameters`` when given, else every parameter whose
     distribution is not ``constant`` (the inputs screening kept, seed
-    §4.3.3).
+    §4.3.3). ``key`` is the config key the messages name.
 
     Raises
     ------
@@ -70,23 +71,23 @@ def calibration_parameters(config: Config, settings: CalibrationSettings) -> lis
     if settings.parameters is not None:
         for i, name in enumerate(settings.parameters):
             if name not in by_name:
-                raise BpsflowError(f"calibration.parameters[{i}]: '{name}' is not a parameter "
+                raise BpsflowError(f"{key}[{i}]: '{name}' is not a parameter "
                                    f"of the config", source=config.source)
         wanted = set(settings.parameters)
         chosen = [p for p in config.parameters if p.name in wanted]
     else:
         chosen = [p for p in config.parameters if not isinstance(p.distribution, Constant)]
     if not chosen:
-        raise BpsflowError("calibration: no calibration parameters: every parameter is "
-                           "constant; leave the inputs to calibrate uncertain (or name them in "
-                           "calibration.parameters)", source=config.source)
+        raise BpsflowError(f"{key.split('.')[0]}: no parameters to fit: every parameter is "
+                           f"constant; leave the inputs to fit uncertain (or name them in "
+                           f"{key})", source=config.source)
     for p in chosen:
         if isinstance(p.distribution, (Sampler, Discrete, Empirical, Constant)):
             raise BpsflowError(
-                f"parameters ({p.name}).distribution: a calibration parameter needs a continuous "
+                f"parameters ({p.name}).distribution: a fitted parameter ({key}) needs a continuous "
                 f"distribution (uniform, normal, beta, lognormal, triangular), got "
                 f"'{p.distribution.type}'; make it constant or leave it out of "
-                f"calibration.parameters", source=config.source)
+                f"{key}", source=config.source)
     return chosen
 
 

@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from bpsflow.config import Config
-from bpsflow.diagnosis.report import write_diagnosis
-from bpsflow.diagnosis.workflow import Diagnosis, diagnose, settings_of
+from bpsflow.diagnosis.report import REPORT_FILES, write_diagnosis
+from bpsflow.diagnosis.workflow import Diagnosis, check_settings, choose_output, diagnose, settings_of
+from bpsflow.errors import BpsflowError
+from bpsflow.simulation.rundir import move_aside
 
 
 def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *,
@@ -24,24 +29,37 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     ``allow_implausible`` accepts values outside their plausible range.
     Returns the :class:`Diagnosis`.
     """
+    from bpsflow.alignment import check_coverage
     from bpsflow.measured import plausibility_reference, read_measured
     from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.rundir import prepare_run_dir
 
     console = console or Console()
-    wanted = settings_of(config).output
-    data = read_measured(measured_path, config,
-                         required=[wanted] if wanted in config.outputs else None,
-                         reference=plausibility_reference(config.run_dir.resolve()),
-                         allow_implausible=allow_implausible)
-    for note in data.notes:
-        console.print(f"[yellow]{note}[/yellow]", highlight=False)
-    measured = data.frame
+    settings = settings_of(config)
+    # the config's own contradictions first: they are no fault of the measured file
+    check_settings(config, settings)
     if backend is not None:
         config = config.model_copy(deep=True, update={})
         config.model.backend = backend
-    chosen = choose_backend(config, console.print).name
     out = Path(out) if out is not None else config.run_dir / "diagnosis"
-    settings = settings_of(config)
+    prepare_run_dir(out, where="--out")
+    wanted = settings.output
+    reference = plausibility_reference(config.run_dir.resolve())
+    chosen = choose_backend(config, console.print).name
+    if reference is None:
+        reference = nominal_reference(config, chosen)
+    data = read_measured(measured_path, config,
+                         required=[wanted] if wanted in config.outputs else None,
+                         reference=reference, allow_implausible=allow_implausible)
+    for note in data.notes:
+        console.print(f"[yellow]{note}[/yellow]", highlight=False)
+    measured = data.frame
+    output = choose_output(config, measured, settings)
+    check_coverage(config, measured, measured_path, outputs=[output])
+    check_varies(config, measured, output, measured_path)
+    earlier = move_aside(out, REPORT_FILES)
+    if earlier is not None:
+        console.print(f"the earlier diagnosis in {out} was moved to {earlier}", highlight=False)
     # base fit, signatures or one fit per candidate extension per round: an estimate the bar extends
     expected = 1 + len(settings.extensions)
     with Progress(TextColumn("[bold]diagnose[/bold] {task.description}"), BarColumn(),
@@ -67,6 +85,39 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     console.print(f"wrote {paths['json']}, {paths['markdown']} and figures in {out / 'figures'}",
                   highlight=False)
     return result
+
+
+def nominal_reference(config: Config, backend: str) -> pd.DataFrame | None:
+    """Tidy outputs of one run at the inputs' nominal values: the plausibility reference.
+
+    Without an ensemble in the run directory, the measured file's scale and
+    sign are judged against this run (a kW column read as W is 1000 times off
+    it); None when the run fails, and the fits then meet the problem.
+    """
+    from bpsflow.calibration.design import nominal_sample
+    from bpsflow.simulation.backend import get_backend
+    from bpsflow.simulation.ensemble import simulate_batch
+
+    samples = pd.DataFrame([nominal_sample(config)], index=pd.Index([0], name="instance"))
+    # scratch only: a measured file refused after this run leaves nothing behind
+    with tempfile.TemporaryDirectory(prefix="bpsflow-reference-") as workdir:
+        outcome = simulate_batch(config, samples, Path(workdir), get_backend(backend))
+    return None if outcome.failed or not len(outcome.tidy) else outcome.tidy
+
+
+def check_varies(config: Config, measured: pd.DataFrame, output: str, source: Path) -> None:
+    """Refuse a measured output that never changes where evaluated: its residual holds no evidence."""
+    from bpsflow.alignment import evaluation_hours
+
+    hours = [evaluation_hours(test, config.model.year) for test in config.model.tests
+             if output in test.outputs]
+    values = measured[output].reindex(hours[0].append(hours[1:]).unique()).to_numpy(dtype=float)
+    values = values[np.isfinite(values)]
+    if values.size and np.ptp(values) == 0:
+        raise BpsflowError(f"column '{output}': every value of the evaluated hours is {values[0]:g}; expected a "
+                           f"measured output that varies (a diagnosis reads the structure of "
+                           f"its residual). Choose another with diagnosis.output",
+                           source=source)
 
 
 def summary_table(result: Diagnosis) -> Table:

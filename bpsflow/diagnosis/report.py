@@ -26,6 +26,8 @@ from bpsflow.files import inside, save_figure, write_csv, write_text_atomic
 JSON_FILE = "diagnosis.json"
 MARKDOWN_FILE = "diagnosis.md"
 RESIDUALS_FILE = "residuals.csv"
+#: What a diagnosis writes in its folder (an earlier diagnosis's are moved aside first).
+REPORT_FILES = (JSON_FILE, MARKDOWN_FILE, RESIDUALS_FILE, "figures")
 
 
 def untried_reason(d: Diagnosis) -> str | None:

@@ -54,8 +54,9 @@ class DiagnosisSettings(BaseModel):
     """Settings of ``bpsflow diagnose``.
 
     ``parameters`` are the existing parameters calibrated before the
-    residuals are read (default: the config's non-constant parameters, or
-    ``calibration.parameters`` when that names them). Every *other*
+    residuals are read (default: ``calibration.parameters`` when that names
+    them, else the config's parameters with a continuous distribution; a
+    sampler, discrete or empirical input stays at its nominal). Every *other*
     parameter is a candidate cause of a ``parameter`` verdict, within
     ``plausible_change`` (relative) of its nominal value, or within its
     distribution's 1–99 % range when it is uncertain.

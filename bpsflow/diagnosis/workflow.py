@@ -156,6 +156,27 @@ def settings_of(config: Config) -> DiagnosisSettings:
     return getattr(config, "diagnosis", None) or DiagnosisSettings()
 
 
+def check_settings(config: Config, settings: DiagnosisSettings) -> list[Parameter]:
+    """Refuse ``diagnosis`` settings that contradict the config; return the fitted parameters.
+
+    Checked before the measured file is read or anything runs.
+    """
+    wanted = [o for t in config.model.tests for o in t.outputs]
+    if settings.output is not None and settings.output not in wanted:
+        raise BpsflowError(f"diagnosis.output: '{settings.output}' is not an output of the "
+                           f"config's tests (expected one of {sorted(set(wanted))})",
+                           source=config.source)
+    fitted = fitted_parameters(config, settings)
+    names = {p.name for p in fitted}
+    for i, name in enumerate(settings.suspects or []):
+        if name in names:
+            raise BpsflowError(f"diagnosis.suspects[{i}]: '{name}' is also fitted (in "
+                               f"diagnosis.parameters, or calibration.parameters by default); "
+                               f"expected an input that the fit leaves at its nominal value",
+                               source=config.source)
+    return fitted
+
+
 def choose_output(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings) -> str:
     """The output to diagnose: ``diagnosis.output``, else the first measured output of the tests."""
     wanted = [o for t in config.model.tests for o in t.outputs]
@@ -190,9 +211,26 @@ def fitted_parameters(config: Config, settings: DiagnosisSettings) -> list[Param
             raise BpsflowError(f"diagnosis.suspects[{i}]: '{name}' is not a parameter of the "
                                f"config", source=config.source)
     names = settings.parameters
+    if names == []:
+        raise BpsflowError("diagnosis.parameters: the list is empty; expected the existing "
+                           "parameters to calibrate before the residuals are read (or leave the "
+                           "key out for the config's uncertain parameters)", source=config.source)
     if names is None and config.calibration is not None:
         names = config.calibration.parameters
-    return calibration_parameters(config, CalibrationSettings(parameters=names))
+    if names is None:
+        from bpsflow.distributions import Constant, Discrete, Empirical, Sampler
+
+        # by default only what a fit can move: a drawn boundary sequence or a discrete choice
+        # stays at its nominal, as a constant does
+        names = [p.name for p in config.parameters
+                 if not isinstance(p.distribution, (Sampler, Discrete, Empirical, Constant))]
+        if not names:
+            raise BpsflowError("diagnosis.parameters: the config has no uncertain parameter "
+                               "with a continuous distribution to fit; name the existing "
+                               "parameters to calibrate", source=config.source)
+    key = ("diagnosis.parameters" if settings.parameters is not None or config.calibration is None
+           or config.calibration.parameters is None else "calibration.parameters")
+    return calibration_parameters(config, CalibrationSettings(parameters=names), key)
 
 
 def indoor_temperature(config: Config, measured: pd.DataFrame,

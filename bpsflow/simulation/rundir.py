@@ -171,8 +171,10 @@ def read_results(run_dir: Path) -> pd.DataFrame:
                            f"CONFIG' again to rebuild it from the finished instances") from None
 
 
-def prepare_run_dir(run_dir: Path) -> Path:
+def prepare_run_dir(run_dir: Path, where: str = "execution.run_dir (or --run-dir)") -> Path:
     """Create the run directory, with a clear error when that is not possible.
+
+    ``where`` names the key or option the folder came from, in the messages.
 
     Raises
     ------
@@ -181,7 +183,6 @@ def prepare_run_dir(run_dir: Path) -> Path:
         not writable; the message names the path and says what was expected.
     """
     run_dir = Path(run_dir)
-    where = "execution.run_dir (or --run-dir)"
     if run_dir.exists() and not run_dir.is_dir():
         raise BpsflowError(f"{where}: {run_dir} is a file; expected a folder (or a path where "
                            f"bpsflow may create one)")
@@ -196,7 +197,7 @@ def prepare_run_dir(run_dir: Path) -> Path:
                            f"{_nearest_existing(run_dir)}; expected a writable folder") from None
     if not os.access(run_dir, os.W_OK | os.X_OK):
         raise BpsflowError(f"{where}: {run_dir} is not writable; expected a folder bpsflow may "
-                           f"write in (or another --run-dir)")
+                           f"write in")
     return run_dir
 
 
