@@ -454,6 +454,10 @@ def validate(config: Path = ConfigArg,
     gap = ensemble_gap_note(rd, results)
     if gap:
         console.print(f"[yellow]{escape(gap)}[/yellow]", highlight=False)
+    if invalid is not None and invalid.resolve() == rd.resolve():
+        raise BpsflowError(f"--invalid: {invalid} is the run being validated; expected the run "
+                           f"directory of another ensemble (e.g. the baseline's) whose "
+                           f"predictions are treated as invalid")
     invalid_results = read_results(invalid.resolve()) if invalid else None
     data = _read_measured(measured, cfg, required=_test_outputs(cfg), reference=results,
                           allow_implausible=allow_implausible)

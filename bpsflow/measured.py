@@ -667,6 +667,21 @@ def _keep_test_windows(frame: pd.DataFrame, config: Config, path: Path,
     if inside.all():
         return frame
     expected = "; ".join(f"{t.name}: {s} .. {e}" for t, (s, e) in zip(config.model.tests, windows))
+    starts = {start for start, _ in windows}
+    ends = {end for _, end in windows}
+    step = _file_step(frame.index, path)
+    if (inside.any() and step is not None and all(b in starts for b in bins[~inside])
+            and frame.index[-1] + step in ends):
+        # left out only at a window's first instant, and one step short of a window's end:
+        # every stamp marks the start of its interval, and reading them as ends shifts the data
+        shift = ("one hour" if step == pd.Timedelta(hours=1)
+                 else f"{step / pd.Timedelta(minutes=1):g} minutes")
+        raise BpsflowError(f"column '{TIMESTAMP_COLUMN}': the stamps look hour-beginning (the "
+                           f"file runs from {frame.index[0]} to {frame.index[-1]}, one step "
+                           f"before the windows {expected}); bpsflow reads hour-ending stamps, "
+                           f"01:00 for the mean over 00:00-01:00, so add "
+                           f"{shift} to them",
+                           source=path)
     if not inside.any():
         raise BpsflowError(f"column '{TIMESTAMP_COLUMN}': no row falls in any test window (the "
                            f"file runs from {frame.index[0]} to {frame.index[-1]}; expected "

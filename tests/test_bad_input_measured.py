@@ -543,3 +543,81 @@ def test_a_semicolon_file_with_decimal_commas_is_named_as_such(case):
     lines = [lines[0]] + [line.replace(".", ",") for line in lines[1:]]
     _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n", "semicolons.csv"),
                           "separated by ';'", "decimal commas")
+
+
+def _diagnose(config: Path, measured: Path, run_dir: Path, *extra: object):
+    return invoke("diagnose", config, "--measured", measured, "--run-dir", run_dir,
+                  "--no-progress", *extra)
+
+
+def test_diagnose_refuses_data_that_do_not_cover_its_tests(case):
+    """Hour-beginning stamps and a file that stops early are named, never silently shifted."""
+    beginning = case.hourly.copy()
+    beginning.index = beginning.index - pd.Timedelta(hours=1)
+    _assert_fails_cleanly(case, case.write(beginning, "hour_beginning.csv"), "hour-beginning",
+                          "add one hour", command="diagnose", extra=("--no-progress",))
+    _assert_fails_cleanly(case, case.write(beginning, "hour_beginning.csv"), "hour-beginning")
+    _assert_fails_cleanly(case, case.write(case.hourly.iloc[:-60], "short.csv"),
+                          "the measured data cover", command="diagnose",
+                          extra=("--no-progress",))
+
+
+def test_diagnose_refuses_a_measured_output_that_never_changes(case):
+    zero = case.hourly.copy()
+    zero[HEATING] = 0.0
+    _assert_fails_cleanly(case, case.write(zero, "no_heating.csv"), f"column '{HEATING}'",
+                          "every value of the evaluated hours is 0", "diagnosis.output",
+                          command="diagnose", extra=("--no-progress",))
+
+
+def test_reversed_sign_of_a_never_negative_output_is_refused(case):
+    """Cooling logged as negative heating: the simulations never go below zero."""
+    reversed_sign = case.hourly.copy()
+    reversed_sign[HEATING] = -reversed_sign[HEATING]
+    _assert_fails_cleanly(case, case.write(reversed_sign, "negative.csv"), f"column '{HEATING}'",
+                          "the simulations are never negative")
+    _assert_fails_cleanly(case, case.write(reversed_sign, "negative.csv"),
+                          "the simulations are never negative", command="diagnose",
+                          extra=("--no-progress",))
+
+
+def test_diagnose_without_an_ensemble_judges_scale_by_a_nominal_run(case, tmp_path):
+    """No results in the run directory: a kW file in a W column is still refused."""
+    fresh = tmp_path / "fresh"
+    kilowatts = case.hourly.copy()
+    kilowatts[HEATING] = kilowatts[HEATING] / 1000
+    result = _diagnose(case.config, case.write(kilowatts, "kw.csv"), fresh)
+    assert_clean_error(result, "kw.csv", f"column '{HEATING}'", "times smaller than the "
+                       "simulations'", "kilo-units")
+    assert not (fresh / "diagnosis" / "diagnosis.json").exists()
+    hundredfold = case.hourly.copy()
+    hundredfold[HEATING] = hundredfold[HEATING] * 1000
+    assert_clean_error(_diagnose(case.config, case.write(hundredfold, "w1000.csv"), fresh),
+                       "w1000.csv", f"column '{HEATING}'", "plausible range")
+
+
+@pytest.mark.parametrize("section, needles", [
+    ({"output": "cooling_power_w"}, ("diagnosis.output", "'cooling_power_w' is not an output "
+                                                         "of the config's tests")),
+    ({"parameters": []}, ("diagnosis.parameters: the list is empty",)),
+    ({"parameters": ["ground_reflectance"], "suspects": ["ground_reflectance"]},
+     ("diagnosis.suspects[0]", "also fitted")),
+])
+def test_diagnose_settings_are_checked_before_the_data(case, tmp_path, section, needles):
+    """A contradiction in the config is named first, even beside a broken measured file."""
+    raw = yaml.safe_load(case.config.read_text())
+    raw["diagnosis"] = section
+    (tmp_path / "cfg").mkdir()
+    config = write_config(tmp_path / "cfg", raw)
+    lines = case.csv_lines()
+    lines[3] = lines[3].rsplit(",", 1)[0] + ",inf"
+    result = _diagnose(config, case.text("\n".join(lines) + "\n", "broken.csv"), case.run_dir)
+    assert_clean_error(result, "case.yaml", *needles)
+
+
+def test_diagnose_refuses_an_out_folder_it_cannot_write(case, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    result = _diagnose(case.config, case.write(case.hourly), case.run_dir, "--out",
+                       blocker / "diagnosis")
+    assert_clean_error(result, "--out", "a_file is a file")

@@ -136,6 +136,14 @@ def test_cli_null_case_writes_the_contract_and_invents_no_cause(surrogate_base, 
     assert "**Verdict: none.**" in (out / "diagnosis.md").read_text()
     table = pd.read_csv(out / "residuals.csv")
     assert len(table) == record["hours"]["calibration"] + record["hours"]["heldout"]
+    # a second diagnosis into the same folder moves the first aside, figures and all
+    again = CliRunner().invoke(app, ["diagnose", str(surrogate_base), "--measured",
+                                     str(case.measured), "--out", str(out), "--no-progress"])
+    assert again.exit_code == 0, again.output
+    earlier = list((out / "previous").glob("*"))
+    assert len(earlier) == 1 and "moved to" in again.output
+    assert json.loads((earlier[0] / "diagnosis.json").read_text()) == record
+    assert (earlier[0] / "figures" / "heldout.png").is_file()
 
 
 @pytest.mark.slow

@@ -233,12 +233,16 @@ def test_a_failed_base_fit_exits_with_one_line_and_writes_nothing(gain_case, tmp
     monkeypatch.setattr(OutputSimulator, "__call__", nothing_runs)
     base, measured = gain_case
     out = tmp_path / "out"
+    out.mkdir()
+    (out / "diagnosis.md").write_text("an earlier diagnosis")
     result = CliRunner().invoke(app, ["diagnose", str(base), "--measured", str(measured),
                                       "--out", str(out), "--no-progress"])
     assert result.exit_code != 0
     assert "nothing to diagnose" in result.output and "no run" in result.output
     assert "Traceback" not in result.output
     assert not (out / "diagnosis.json").exists()
+    # a diagnosis that fails leaves the earlier report where it was
+    assert (out / "diagnosis.md").read_text() == "an earlier diagnosis"
 
 
 # ---------------------------------------------------------------------------

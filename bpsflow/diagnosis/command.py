@@ -57,9 +57,6 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     output = choose_output(config, measured, settings)
     check_coverage(config, measured, measured_path, outputs=[output])
     check_varies(config, measured, output, measured_path)
-    earlier = move_aside(out, REPORT_FILES)
-    if earlier is not None:
-        console.print(f"the earlier diagnosis in {out} was moved to {earlier}", highlight=False)
     # base fit, signatures or one fit per candidate extension per round: an estimate the bar extends
     expected = 1 + len(settings.extensions)
     with Progress(TextColumn("[bold]diagnose[/bold] {task.description}"), BarColumn(),
@@ -76,6 +73,10 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
                           announce=lambda text: console.print(text, highlight=False),
                           step=step)
         progress.update(task, total=progress.tasks[task].completed)
+    # after the work, so that a diagnosis that fails leaves the earlier one where it was
+    earlier = move_aside(out, REPORT_FILES)
+    if earlier is not None:
+        console.print(f"the earlier diagnosis in {out} was moved to {earlier}", highlight=False)
     paths = write_diagnosis(result, out)
     console.print(summary_table(result))
     console.print(f"[bold]verdict: {result.verdict}[/bold] — {result.cause.get('summary', '')}",
