@@ -168,7 +168,7 @@ def read_measured(path: Path | str, config: Config, *, required: Sequence[str] |
     """
     path = Path(path)
     notes: list[str] = []
-    header, rows, lines = _csv_rows(_read_text(path), path)
+    header, rows, lines = _csv_rows(_read_text(path), path, notes)
     stamp_column = _timestamp_column(header, path)
     columns = _value_columns(header, stamp_column, config, required, path, notes)
     table = {name: [row[i] for row in rows] for i, name in enumerate(header)}
@@ -248,19 +248,40 @@ def _read_text(path: Path) -> str:
                            f"expected a CSV file saved as UTF-8", source=path) from None
 
 
-def _csv_rows(text: str, path: Path) -> tuple[list[str], list[list[str]], np.ndarray]:
-    """Header, data rows and each row's 1-based line number; blank lines are skipped."""
+#: Field separators of other CSV dialects, for the hint when a header holds one of them.
+OTHER_SEPARATORS = {";": "';' (with decimal commas?)", "\t": "tabs", "|": "'|'"}
+
+
+def _csv_rows(text: str, path: Path, notes: list[str]
+              ) -> tuple[list[str], list[list[str]], np.ndarray]:
+    """Header, data rows and each row's 1-based line number.
+
+    Blank lines are skipped, and so are comment lines (first field starting
+    with ``#``, as data loggers write above the header), with a note.
+    """
     reader = csv.reader(io.StringIO(text, newline=""))
     header: list[str] | None = None
     rows: list[list[str]] = []
     lines: list[int] = []
+    comments: list[int] = []
     try:
         for record in reader:
             if not record or all(not cell.strip() for cell in record):
                 continue
+            if record[0].lstrip().startswith("#"):
+                comments.append(reader.line_num)
+                continue
             if header is None:
                 header = [cell.strip() for cell in record]
                 header_line = reader.line_num
+                separator = next((name for mark, name in OTHER_SEPARATORS.items()
+                                  if len(header) == 1 and mark in header[0]), None)
+                if separator:
+                    raise BpsflowError(f"line {header_line}: the header is one field: the file "
+                                       f"is separated by {separator}; "
+                                       f"expected commas between fields and points in numbers "
+                                       f"(e.g. export as CSV with an English locale)",
+                                       source=path)
                 continue
             if len(record) != len(header):
                 hint = ""
@@ -274,6 +295,10 @@ def _csv_rows(text: str, path: Path) -> tuple[list[str], list[list[str]], np.nda
             lines.append(reader.line_num)
     except csv.Error as exc:
         raise BpsflowError(f"line {reader.line_num}: not valid CSV ({exc})", source=path) from None
+    if comments:
+        notes.append(f"{path.name}: {len(comments)} comment line(s) starting with '#' skipped "
+                     f"(line {comments[0]}" + (f" .. {comments[-1]})" if len(comments) > 1
+                                               else ")"))
     if header is None:
         raise BpsflowError("the measured data file has no header line", source=path)
     if not rows:

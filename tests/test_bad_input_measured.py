@@ -621,3 +621,23 @@ def test_diagnose_refuses_an_out_folder_it_cannot_write(case, tmp_path):
     result = _diagnose(case.config, case.write(case.hourly), case.run_dir, "--out",
                        blocker / "diagnosis")
     assert_clean_error(result, "--out", "a_file is a file")
+
+
+@pytest.mark.parametrize("separator, needle", [("\t", "separated by tabs"),
+                                               ("|", "separated by '|'")])
+def test_other_separators_are_named(case, separator, needle):
+    text = "\n".join(line.replace(",", separator) for line in case.csv_lines()) + "\n"
+    _assert_fails_cleanly(case, case.text(text, "other.csv"), "line 1", needle,
+                          "expected commas")
+
+
+def test_comment_lines_above_the_header_are_skipped_and_said(case):
+    text = "# logger 42, exported 2025-12-10\n# site: test cell\n" + \
+        "\n".join(case.csv_lines()) + "\n"
+    before = snapshot(case.run_dir)
+    path = case.text(text, "commented.csv")
+    text_out = assert_ok(case.validate(path))
+    assert "2 comment line(s) starting with '#' skipped (line 1 .. 2)" in " ".join(text_out.split())
+    plain = case.validate(case.write(case.hourly, "plain.csv"))
+    assert plain.exit_code == 0
+    assert before.keys() == snapshot(case.run_dir).keys()
