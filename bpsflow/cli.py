@@ -310,13 +310,14 @@ def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     from bpsflow.design_record import require_same_design
     from bpsflow.sampling import read_samples
     from bpsflow.simulation.backend import choose_backend
+    from bpsflow.simulation.rundir import prepare_run_dir
 
     cfg = _load(config, run_dir)
     rd = _lock(cfg)
     samples = read_samples(rd)
     require_same_design(cfg, rd, "instances")
     chosen = choose_backend(cfg, err_console.print)
-    out = out or rd / "inspect"
+    out = prepare_run_dir(out or rd / "inspect", where="--out")
     for i in instance:
         if i not in samples.index:
             raise BpsflowError(f"--instance {i}: not in samples.parquet (0..{len(samples) - 1})")
@@ -636,12 +637,18 @@ def refine(config: Path = ConfigArg,
            run_dir: Path | None = RunDirOption,
            no_progress: bool = NoProgressOption) -> None:
     """Refine input distributions from detailed measurements (seed §3.4.3-3.5)."""
+    from bpsflow.config import refuse_config_chain
+    from bpsflow.files import check_writable_file
     from bpsflow.refine import interval_table, write_refinement
     from bpsflow.refine import refine as run_refine
+    from bpsflow.simulation.rundir import prepare_run_dir
 
     cfg = _load(config, run_dir)
     rd = _lock(cfg)
-    out = (out or rd / "refine").resolve()
+    out = prepare_run_dir((out or rd / "refine").resolve(), where="--out")
+    if refined_config is not None:
+        refuse_config_chain(cfg, refined_config, "--refined-config")
+        check_writable_file(refined_config, "--refined-config")
     refinement = run_refine(cfg, detailed)
     paths = write_refinement(refinement, out, refined_config)
     table = Table(title=f"{cfg.name}: refined inputs, 90 % intervals (seed §3.5)")

@@ -802,6 +802,20 @@ def config_chain(path: str | Path) -> list[Path]:
         chain.append(parent_path)
 
 
+def refuse_config_chain(config: Config, path: str | Path, where: str) -> None:
+    """Refuse to write ``path`` when it is ``config``'s file or a base it extends.
+
+    Written configs (a screened or refined one) extend the config; writing
+    over it or its bases would lose the user's file.
+    """
+    chain = config_chain(config.source) if config.source else []
+    resolved = Path(path).resolve()
+    if resolved in chain:
+        what = "the config given" if resolved == chain[0] else "a base config it extends"
+        raise BpsflowError(f"{where}: {path} is {what}; expected another file (what is "
+                           f"written extends it)")
+
+
 def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
     """Read, validate and resolve a YAML config.
 

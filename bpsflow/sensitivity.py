@@ -543,16 +543,11 @@ def check_screen_target(config: Config, out_path: Path | None) -> Path:
     earlier reduced config (its first line :data:`SCREENED_HEADER`) are
     refused; so is a path bpsflow cannot write.
     """
-    from bpsflow.config import config_chain
+    from bpsflow.config import refuse_config_chain
     from bpsflow.files import check_writable_file
 
     out_path = Path(out_path or default_screen_path(config))
-    chain = config_chain(config.source) if config.source else []
-    if out_path.resolve() in chain:
-        raise BpsflowError(f"--screen-out: {out_path} is "
-                           + ("the config being screened" if out_path.resolve() == chain[0]
-                              else "a base config it extends")
-                           + "; expected another file (the reduced config extends it)")
+    refuse_config_chain(config, out_path, "--screen-out")
     if out_path.is_file():
         with open(out_path, encoding="utf-8", errors="replace") as handle:
             first = handle.readline()

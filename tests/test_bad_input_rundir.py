@@ -622,3 +622,13 @@ def test_an_engine_that_dies_is_recorded_with_how_it_ended(tmp_path, script, nee
     assert needle in outcome.error and "wrote no eplusout.err" in outcome.error
     if "licences" in script:
         assert "out of licences" in outcome.error
+
+
+def test_refine_never_writes_its_config_over_the_one_given(tmp_path):
+    """--refined-config naming the config (or a base) is refused before anything is read."""
+    config = write_config(tmp_path, short_raw())
+    before = config.read_text()
+    result = invoke("refine", config, "--detailed", tmp_path / "nowhere.csv",
+                    "--refined-config", config)
+    assert_clean_error(result, "--refined-config", "is the config given")
+    assert config.read_text() == before

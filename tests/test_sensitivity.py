@@ -299,7 +299,7 @@ def test_sensitivity_refuses_outputs_that_would_overwrite_a_users_file(tmp_path)
     notes = tmp_path / "notes.yaml"
     notes.write_text("my own notes\n")
     runner = CliRunner()
-    for target, needle in ((base, "a base config it extends"), (child, "the config being screened"),
+    for target, needle in ((base, "a base config it extends"), (child, "the config given"),
                            (notes, "exists and is not a reduced config")):
         before = target.read_text() if target.is_file() else None
         result = runner.invoke(app, ["sensitivity", str(child), "--screen", "2", "--screen-out",

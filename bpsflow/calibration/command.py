@@ -122,6 +122,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
         # a wrong --truth file is refused before the design runs, not after
         workflow.read_truth(truth_path, config.parameters)
     out = Path(out) if out else config.run_dir.resolve() / DEFAULT_OUT
+    from bpsflow.simulation.rundir import prepare_run_dir
+
+    prepare_run_dir(out, where="--out")
     chosen_backend = choose_backend(config, console.print).name
     design = workflow.prepare_design(config, settings, out / "design", chosen_backend, jobs,
                                      show_progress)
