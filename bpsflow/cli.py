@@ -175,7 +175,7 @@ def _test_outputs(cfg) -> list[str]:
 
 #: What a run directory holds for one design: moved aside together by ``sample --force``.
 _DESIGN_FILES = ("instances", "manifest.parquet", "results.parquet", "samples.parquet",
-                 "design_unit.parquet", "boundary_sequences.npz", "design.json",
+                 "design_unit.parquet", "boundary_sequences.npz", "design.json", "simulation.json",
                  "config.resolved.yaml", "figures", "validation.json", "validation.csv")
 #: Files that mean instances of the design have run.
 _RUN_FILES = ("instances", "manifest.parquet", "results.parquet")
@@ -338,7 +338,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         allow_implausible: bool = AllowImplausibleOption,
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar.")) -> None:
     """Run every instance (sampling first if needed); resume skips finished instances."""
-    from bpsflow.design_record import require_same_design
+    from bpsflow.design_record import require_same_design, require_same_simulation
     from bpsflow.measured import plausibility_reference
     from bpsflow.plots import band_summary, plot_bands
     from bpsflow.sampling import SAMPLES_FILE, read_samples
@@ -359,6 +359,7 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         _sample(cfg)
     else:
         require_same_design(cfg, rd, "run")
+        require_same_simulation(cfg, rd, "run", chosen.name)
         _write_resolved(cfg)
     summary = run_ensemble(cfg, read_samples(rd), chosen, jobs=jobs, retry_failed=retry_failed,
                            keep_inputs=keep_inputs, show_progress=not no_progress)
@@ -440,7 +441,7 @@ def validate(config: Path = ConfigArg,
              run_dir: Path | None = RunDirOption,
              no_progress: bool = NoProgressOption) -> None:
     """Probabilistic validation: thresholds, type I/II risk, nMCRPS, NMBE, CV(RMSE)."""
-    from bpsflow.design_record import require_same_design
+    from bpsflow.design_record import require_same_design, require_same_simulation
     from bpsflow.plots import plot_bands
     from bpsflow.simulation.rundir import ensemble_gap_note, read_results
     from bpsflow.validation import note_measured, write_outputs
@@ -449,6 +450,7 @@ def validate(config: Path = ConfigArg,
     cfg = _load(config, run_dir, {"validation.q": ("--q", q)})
     rd = _lock(cfg)
     require_same_design(cfg, rd, "validate")
+    require_same_simulation(cfg, rd, "validate")
     # Everything is read and checked before anything is written: a bad file leaves the
     # previous validation.csv/.json as they were.
     results = read_results(rd)

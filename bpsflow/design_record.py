@@ -13,6 +13,14 @@ Not part of the design (they may change freely between commands): the
 execution settings (``jobs``, ``run_dir``, ``keep_files``), the backend, the
 outputs and tests, validation, calibration and diagnosis settings, and a
 parameter's ``group``, ``description`` and ``provenance``.
+
+What the instances *simulate* is recorded apart, in ``simulation.json``,
+when they first run (:func:`simulation_inputs`): the model section (the
+IDF, snippet and weather files by content; the tests, periods, year, time
+step, thermostat zones, boundary settings), the outputs and the backend.
+Finished instances of another model are never resumed, validated or mixed
+with new ones: ``run`` and ``validate`` compare the record and name what
+changed (:func:`require_same_simulation`).
 """
 
 from __future__ import annotations
@@ -183,3 +191,92 @@ def require_same_design(config: Config, run_dir: Path, command: str) -> None:
         f"with 'bpsflow sample CONFIG --force' (the old results are moved to "
         f"{Path(run_dir) / 'previous'}/<timestamp>), or use another --run-dir",
         source=config.source)
+
+
+SIMULATION_FILE = "simulation.json"
+
+#: Output keys that say how a value is read or judged, not what is simulated.
+_OUTPUT_COSMETIC = ("plausible", "label", "description")
+
+
+def simulation_inputs(config: Config) -> dict[str, Any]:
+    """What decides the instances' outputs besides their parameter values, as key paths.
+
+    Files (the IDF, its snippets, the weather file, the boundary data and the
+    files beside the IDF that it may read, such as a ``Schedule:File``) are
+    given by their content's SHA-256; ``model.backend`` and the EnergyPlus
+    path are left to :func:`require_same_simulation`'s caller.
+    """
+    model = config.model.model_dump(mode="json", exclude={"backend", "energyplus", "idf",
+                                                          "idf_objects", "weather"})
+    inputs: dict[str, Any] = {f"model.{key}": value for key, value in model.items()
+                              if key != "boundary"}
+    if config.model.boundary is not None:
+        inputs["model.boundary"] = config.model.boundary.model_dump(mode="json",
+                                                                    exclude={"file"})
+        inputs["model.boundary.file (sha256)"] = _digest(config.model.boundary.file)
+    inputs["model.idf (sha256)"] = _digest(config.model.idf)
+    inputs["model.idf_objects (sha256)"] = [_digest(p) for p in config.model.idf_objects]
+    inputs["model.weather (sha256)"] = _digest(config.model.weather)
+    idf = Path(config.model.idf)
+    beside = sorted(p for p in idf.parent.iterdir() if p.is_file() and p != idf
+                    and p.suffix.lower() in (".csv", ".txt")) if idf.parent.is_dir() else []
+    if beside:
+        inputs["files beside model.idf (sha256)"] = {p.name: _digest(p) for p in beside}
+    for name, output in config.outputs.items():
+        inputs[f"outputs.{name}"] = output.model_dump(mode="json", exclude=set(_OUTPUT_COSMETIC))
+    return jsonable(inputs)
+
+
+def read_simulation_record(run_dir: Path) -> dict[str, Any] | None:
+    """``simulation.json``'s record (``inputs``, ``backend``), or None when missing or unreadable."""
+    try:
+        record = json.loads((Path(run_dir) / SIMULATION_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("inputs"), dict) \
+        else None
+
+
+def write_simulation_record(config: Config, run_dir: Path, backend: str) -> Path:
+    """Record what the instances of ``run_dir`` simulate (written when the first ones run)."""
+    return write_json(Path(run_dir) / SIMULATION_FILE,
+                      {"inputs": simulation_inputs(config), "backend": backend})
+
+
+def require_same_simulation(config: Config, run_dir: Path, command: str,
+                            backend: str | None = None) -> None:
+    """Raise when ``run_dir``'s finished instances simulated another model than the config's.
+
+    Parameters
+    ----------
+    config : Config
+    run_dir : Path
+    command : str
+        The command that would use them (named in the message).
+    backend : str, optional
+        The backend that would run more instances (``run``): instances of
+        two backends are never mixed. ``validate`` passes None.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the run directory, the changed keys and the ways out.
+    """
+    record = read_simulation_record(run_dir)
+    if record is None:
+        return
+    changes = changed_keys(record["inputs"], simulation_inputs(config))
+    if backend is not None and record.get("backend") not in (None, backend):
+        changes.insert(0, f"backend: {record['backend']} -> {backend}")
+    if not changes:
+        return
+    shown = "; ".join(changes[:3]) + (f"; and {len(changes) - 3} more" if len(changes) > 3 else "")
+    raise BpsflowError(
+        f"the instances in {run_dir} simulated another model than the config's ({shown}); "
+        f"'{command}' would "
+        + ("mix their results with new ones" if command == "run"
+           else "score results of the old model")
+        + f". Run the new model with 'bpsflow sample CONFIG --force' then 'bpsflow run' (the "
+        f"old results are moved to {Path(run_dir) / 'previous'}/<timestamp>), or use another "
+        f"--run-dir", source=config.source)

@@ -59,6 +59,7 @@ from SALib.analyze import morris as salib_morris
 
 from bpsflow.alignment import align, evaluation_hours
 from bpsflow.config import Config, Parameter
+from bpsflow.design_record import SIMULATION_FILE, changed_keys, simulation_inputs
 from bpsflow.distributions import Constant
 from bpsflow.errors import BpsflowError
 from bpsflow.files import inside, jsonable, read_parquet, write_csv, write_json, write_text_atomic
@@ -78,6 +79,7 @@ RESPONSE_KINDS: tuple[str, ...] = ("difference", "absolute", "raw")
 
 # Files a Morris run directory holds; removed when the design is drawn again.
 _RUN_FILES = ("samples.parquet", UNIT_DESIGN_FILE, "boundary_sequences.npz", "manifest.parquet",
+              SIMULATION_FILE,
               "results.parquet", "config.resolved.yaml", INDICES_FILE, GROUPS_FILE, SETTINGS_FILE)
 
 
@@ -161,6 +163,8 @@ def design_settings(config: Config, backend: str) -> dict[str, Any]:
     design = config.design
     dumped["design"] = {"method": "morris", "levels": design.levels,
                         "trajectories": design.trajectories, "seed": design.seed}
+    # files by content: an edited IDF or weather file is another design, drawn again
+    dumped["simulation"] = simulation_inputs(config)
     dumped["backend"] = backend
     return dumped
 
@@ -173,6 +177,8 @@ def _differences(old: dict, new: dict) -> list[str]:
         if key == "design" and isinstance(old.get(key), dict):
             changed += [f"design.{k} {old[key].get(k)} → {new[key].get(k)}"
                         for k in new[key] if old[key].get(k) != new[key].get(k)]
+        elif key == "simulation" and isinstance(old.get(key), dict):
+            changed += changed_keys(old[key], new.get(key) or {})
         elif key == "backend":
             changed.append(f"backend {old.get(key)} → {new.get(key)}")
         else:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import copy
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -632,3 +633,39 @@ def test_refine_never_writes_its_config_over_the_one_given(tmp_path):
                     "--refined-config", config)
     assert_clean_error(result, "--refined-config", "is the config given")
     assert config.read_text() == before
+
+
+def test_finished_instances_of_another_model_are_never_resumed_or_scored(tmp_path):
+    """An edited IDF or test setpoint after a run: run and validate refuse (exit 2, naming
+    the change) instead of skipping or scoring the old model's results; sample --force
+    moves them aside and the new model runs."""
+    idf = tmp_path / "model.idf"
+    shutil.copy(ROOT / "sample_idf" / "flexlab_x3b.idf", idf)
+    raw = short_raw()
+    raw["model"]["backend"] = "surrogate"
+    raw["model"]["idf"] = str(idf)
+    config = write_config(tmp_path, raw)
+    assert_ok(invoke("run", config, "--no-progress"))
+    truth = tmp_path / "truth.yaml"
+    truth.write_text("seed: 3\nvalues: {}\n")
+    assert_ok(invoke("synth", config, "--truth", truth))
+    measured = tmp_path / "run" / "truth" / "measured.csv"
+    before = snapshot(tmp_path / "run")
+
+    changed = copy.deepcopy(raw)
+    changed["model"]["tests"][0]["setpoint_c"] = 22.0
+    (tmp_path / "setpoint").mkdir()
+    setpoint = write_config(tmp_path / "setpoint", changed)
+    run_dir = tmp_path / "run"
+    for command in (["run", setpoint, "--run-dir", run_dir, "--no-progress"],
+                    ["validate", setpoint, "--run-dir", run_dir, "--measured", measured]):
+        assert_clean_error(invoke(*command), "simulated another model", "model.tests",
+                           "sample CONFIG --force")
+    assert_unchanged(before, run_dir)
+
+    idf.write_text(idf.read_text() + "\n! edited after the run\n")
+    assert_clean_error(invoke("run", config, "--no-progress"), "model.idf (sha256)")
+    assert_ok(invoke("sample", config, "--force"))
+    text = assert_ok(invoke("run", config, "--no-progress"))
+    assert "ran 3, skipped 0" in " ".join(text.split())
+    assert list((run_dir / "previous").glob("*/simulation.json"))
