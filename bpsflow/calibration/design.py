@@ -160,6 +160,7 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
     if run_dir.exists() and (
             fresh or not previous.is_file() or not marker.is_file()
             or marker.read_text().strip() != fingerprint
+            or _simulates_another_model(config, run_dir, backend)
             or not _same_samples(read_parquet(previous).set_index("instance"), samples)):
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -173,6 +174,15 @@ def run_samples(config: Config, samples: pd.DataFrame, run_dir: Path, *, backend
         raise BpsflowError(f"{summary.failed} of {summary.total} calibration runs failed in "
                            f"{run_dir}: {summary.first_error}")
     return read_results(run_dir)
+
+
+def _simulates_another_model(config: Config, run_dir: Path, backend: str) -> bool:
+    """Whether ``run_dir``'s runs simulated other model files, tests, outputs or backend."""
+    from bpsflow.design_record import read_simulation_record, simulation_inputs
+
+    record = read_simulation_record(run_dir)
+    return record is not None and (record["inputs"] != simulation_inputs(config)
+                                   or record.get("backend") not in (None, backend))
 
 
 def _same_samples(old: pd.DataFrame, new: pd.DataFrame) -> bool:
