@@ -27,6 +27,9 @@ from bpsflow.tables import read_table
 from bpsflow.yearhours import NON_LEAP_ROWS, day_rows
 
 SEQUENCES_FILE = "boundary_sequences.npz"
+#: Temperatures (°C) a boundary surface beside a conditioned room can take; outside them the
+#: file is in another unit (kelvin, °F) or another sensor's.
+BOUNDARY_RANGE_C = (-30.0, 60.0)
 
 
 @lru_cache(maxsize=4)
@@ -41,6 +44,17 @@ def read_boundary_file(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     if not np.isfinite(values.to_numpy(dtype=float)).all():
         bad = int(np.argwhere(~np.isfinite(values.to_numpy(dtype=float)))[0][0])
         raise BpsflowError(f"row {bad + 2} holds a missing or non-numeric temperature", source=path)
+    low, high = BOUNDARY_RANGE_C
+    for column in columns:
+        numbers = values[column].to_numpy(dtype=float)
+        outside = (numbers < low) | (numbers > high)
+        if outside.any():
+            row = int(np.flatnonzero(outside)[0])
+            hint = ("; kelvin in a °C column?" if low <= numbers[row] - 273.15 <= high else
+                    "; °F in a °C column?" if low <= (numbers[row] - 32) / 1.8 <= high else "")
+            raise BpsflowError(f"column '{column}', row {row + 2}: {numbers[row]:g} is outside "
+                               f"the {low:g}..{high:g} °C a surface beside a room takes "
+                               f"({int(outside.sum())} value(s) outside){hint}", source=path)
     return frame
 
 

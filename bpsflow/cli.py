@@ -468,6 +468,10 @@ def validate(config: Path = ConfigArg,
     validations = run_validation(cfg, results, observed, cfg.validation.q,
                                  cfg.validation.estimator, invalid_results, measured)
     note_measured(validations, data)
+    if gap:
+        # the files say it too: a partial ensemble's thresholds are not the designed ones
+        for v in validations:
+            v.row["notes"] = "; ".join(n for n in (v.row["notes"], gap) if n)
     paths = write_outputs(validations, rd, cfg.validation.q, measured=data.record())
     plot_bands(cfg, results, rd / "figures", observed)
     table = Table(title=f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "

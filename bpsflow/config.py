@@ -266,7 +266,7 @@ class Model(_Strict):
     idf_objects: list[Path] = Field(default_factory=list)
     weather: Path
     energyplus: Path | None = None
-    year: int = 2025
+    year: int = Field(default=2025, ge=1000, le=9999)
     timesteps_per_hour: Literal[1, 2, 3, 4, 5, 6, 10, 12, 15, 20, 30, 60] = 6
     periods: list[Period] = Field(min_length=1)
     tests: list[Test] = Field(min_length=1)
@@ -329,6 +329,14 @@ class Design(_Strict):
     seed: int = Field(default=0, ge=0, le=MAX_SEED)
     levels: int = Field(default=10, ge=2, le=1000)
     trajectories: int = Field(default=10, ge=2, le=MAX_DESIGN_RUNS // 2)
+
+    @model_validator(mode="after")
+    def _even_levels(self) -> Design:
+        # an odd grid biases Morris's elementary effects (SALib warns and samples anyway)
+        if self.method == "morris" and self.levels % 2:
+            raise ValueError(f"design.levels: a Morris design takes an even number of levels, "
+                             f"got {self.levels}")
+        return self
 
 
 class DaskCluster(_Strict):
@@ -473,6 +481,7 @@ class Config(_Strict):
                 if output not in self.outputs:
                     raise ValueError(f"model.tests[{i}] ({test.name}).outputs: unknown output "
                                      f"'{output}', expected one of {sorted(self.outputs)}")
+        _check_overlapping_tests(self.model.tests, self.model.year)
         own = [t.name for t in self.model.tests if t.mode == "model"]
         if own and len(own) != len(self.model.tests):
             tool = [t.name for t in self.model.tests if t.mode != "model"]
@@ -528,6 +537,37 @@ class Config(_Strict):
 
     def parameter(self, name: str) -> Parameter:
         return next(p for p in self.parameters if p.name == name)
+
+
+#: What sets a test's days' setpoint schedule (two tests on one day must agree on it).
+_CONTROL_FIELDS = ("mode", "setpoint_c", "setback_c", "setback_start_hour", "setback_end_hour")
+
+
+def _check_overlapping_tests(tests: list[Test], year: int) -> None:
+    """Refuse two tests of one period on a common day under different control.
+
+    A day has one setpoint schedule: the later test would silently set the
+    earlier one's days (a heating test left floating). Tests that agree on
+    the control (or run the model's own, ``mode: model``) may share days.
+    """
+    for j, later in enumerate(tests):
+        for earlier in tests[:j]:
+            if earlier.period != later.period or "model" in (earlier.mode, later.mode):
+                continue
+            first_a, _, last_a = test_dates(earlier, year)
+            first_b, _, last_b = test_dates(later, year)
+            if first_b > last_a or first_a > last_b:
+                continue
+            differing = [f"{name} {getattr(earlier, name)} vs {getattr(later, name)}"
+                         for name in _CONTROL_FIELDS
+                         if getattr(earlier, name) != getattr(later, name)]
+            if differing:
+                raise ValueError(
+                    f"model.tests[{j}] ({later.name}): its days {first_b:%m-%d}..{last_b:%m-%d} "
+                    f"(warm-up included) overlap test {earlier.name}'s {first_a:%m-%d}.."
+                    f"{last_a:%m-%d} in period '{later.period}' under other control "
+                    f"({'; '.join(differing)}); a day has one setpoint schedule, so move one "
+                    f"test's days or put it in another period")
 
 
 def _unique(names: list[str], where: str) -> None:

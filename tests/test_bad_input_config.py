@@ -118,8 +118,8 @@ def test_february_29_is_a_day_of_a_leap_model_year(tmp_path):
     raw = _surrogate_raw()
     raw["model"]["year"] = 2024
     raw["model"]["periods"] = [{"name": "winter", "start": "02-27", "end": "03-03"}]
-    for test in raw["model"]["tests"]:
-        test["start"] = "02-29"
+    for test, start in zip(raw["model"]["tests"], ("02-29", "03-02")):
+        test["start"] = start
         test["days"] = 2
     config = load_config(write_config(tmp_path, raw))
     assert config.model.year == 2024
@@ -151,3 +151,71 @@ def test_an_absolute_parameter_that_replaces_another_on_the_same_field_is_refuse
                               "targets": [dict(first["targets"][0])]})
     assert_clean_error(invoke("check", write_config(tmp_path, raw)),
                        first["name"], "replacing_value (absolute)", "no effect")
+
+
+def test_tests_under_other_control_may_not_share_a_day(tmp_path):
+    """A day has one setpoint schedule: a later free-floating test once left the heating
+    test's last day floating, and its heating output read 0 W without a word."""
+    raw = _surrogate_raw()
+    raw["model"]["tests"][1]["start"] = "12-06"
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "model.tests[1] (H-FF)", "overlap test H-ST's 12-05..12-06",
+                       "mode heating vs free_floating")
+    same = _surrogate_raw()
+    same["model"]["tests"][1].update(start="12-06", **{k: same["model"]["tests"][0][k]
+                                                       for k in ("mode", "setpoint_c",
+                                                                 "setback_c")})
+    (tmp_path / "same").mkdir()
+    result = invoke("check", write_config(tmp_path / "same", same), "--no-run")
+    assert result.exit_code == 0, result.output
+
+
+def test_an_odd_number_of_morris_levels_is_refused(tmp_path):
+    raw = _surrogate_raw()
+    raw["design"] = {"method": "morris", "levels": 3, "trajectories": 2}
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "design.levels", "even number of levels")
+
+
+@pytest.mark.parametrize("year", [0, -5, 99999])
+def test_an_impossible_model_year_names_the_key(tmp_path, year):
+    raw = _surrogate_raw()
+    raw["model"]["year"] = year
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), "model.year")
+
+
+@pytest.mark.parametrize("mode, distribution", [
+    ("additive", {"type": "uniform", "lower": -50.0, "upper": -40.0}),
+    ("relative", {"type": "uniform", "lower": -2.0, "upper": -1.0}),
+])
+def test_a_weather_perturbation_that_removes_the_quantity_is_refused(tmp_path, mode,
+                                                                     distribution):
+    """Clipping at zero is for an offset in calm hours; taking every hour to 0 is a mistake."""
+    raw = _surrogate_raw()
+    raw["parameters"].append({"name": "wind_error", "mode": mode, "distribution": distribution,
+                              "targets": [{"weather": "wind_speed"}]})
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "wind_error)", "wind_speed", "clipped to 0")
+
+
+def test_thermostat_zones_are_checked_on_the_surrogate_too(tmp_path):
+    raw = _surrogate_raw()
+    raw["model"]["thermostat_zones"] = ["NoZone"]
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "model.thermostat_zones[0]", "'NoZone' is not a zone")
+
+
+def test_boundary_temperatures_in_kelvin_are_refused(tmp_path):
+    import pandas as pd
+
+    from conftest import ROOT
+
+    frame = pd.read_csv(ROOT / "sample_idf" / "boundary_temperatures.csv")
+    columns = [c for c in frame.columns if c.endswith("_c")]
+    frame[columns] = frame[columns] + 273.15
+    path = tmp_path / "kelvin.csv"
+    frame.to_csv(path, index=False)
+    raw = _surrogate_raw()
+    raw["model"]["boundary"]["file"] = str(path)
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), "kelvin.csv",
+                       "model.boundary.file", "kelvin in a °C column?")

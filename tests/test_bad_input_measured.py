@@ -264,6 +264,9 @@ def test_offset_stamps_without_a_model_time_zone_are_refused(case, tmp_path):
     raw["model"]["weather"] = str(epw)
     (tmp_path / "cfg").mkdir()
     other = write_config(tmp_path / "cfg", raw)
+    # no record of the simulated weather (a run directory from before simulation.json): the
+    # run itself refuses such a weather file, and validate must still say why it cannot align
+    (case.run_dir / "simulation.json").unlink()
     utc = case.hourly.copy()
     utc.index = (utc.index + pd.Timedelta(hours=8)).strftime("%Y-%m-%dT%H:%M:%SZ")
     before = snapshot(case.run_dir)

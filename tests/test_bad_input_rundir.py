@@ -604,6 +604,13 @@ def test_scores_over_a_partial_ensemble_come_with_a_note(tmp_path):
     rundir.write_manifest(tmp_path, records)
     assert rundir.ensemble_gap_note(tmp_path, pd.concat(
         [results, results.assign(instance=3)])) is None
+    # an interrupted run: the manifest holds what finished, the design drew more
+    pd.DataFrame({"instance": range(10), "x": 0.0}).to_parquet(tmp_path / "samples.parquet")
+    note = rundir.ensemble_gap_note(tmp_path, pd.concat([results, results.assign(instance=3)]))
+    assert note is not None and "6 of 10" in note and "4 not run" in note
+    rundir.write_manifest(tmp_path, {})
+    assert "6 of 10" in rundir.ensemble_gap_note(tmp_path, pd.concat(
+        [results, results.assign(instance=3)]))
 
 
 @pytest.mark.parametrize("script, needle", [

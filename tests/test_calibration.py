@@ -698,3 +698,40 @@ def test_every_scenario_is_checked_before_the_design_runs(tmp_path):
     lacking = calibrate_with({"name": "D-ET", "outputs": ["heating_power_w",
                                                          "zone_air_temperature_c"]}, without)
     assert "no_temperature.csv" in lacking and "zone_air_temperature_c" in lacking
+
+
+def test_outputs_of_tests_before_the_held_out_days_and_a_single_held_out_day(tmp_path):
+    """Two tests, the heating one ending before the held-out day: the physical check scores
+    what the held-out day holds (it once failed after all the work, naming the heating output
+    as reported by no test), and one held-out day gives no (n - 1) metric, not an error."""
+    config, measured, _ = _short_calibration_config(tmp_path)
+    raw = yaml.safe_load(config.read_text())
+    raw["model"]["tests"] = [
+        {"name": "H", "period": "cal", "start": "11-08", "days": 8, "warmup_days": 2,
+         "mode": "heating", "setpoint_c": 30.0, "setback_c": 24.0,
+         "outputs": ["heating_power_w"]},
+        {"name": "F", "period": "cal", "start": "11-16", "days": 4, "warmup_days": 1,
+         "mode": "free_floating", "outputs": ["zone_air_temperature_c"]}]
+    raw["calibration"].update(outputs=["heating_power_w", "zone_air_temperature_c"],
+                              holdout_days=1)
+    (tmp_path / "two").mkdir()
+    two = write_config(tmp_path / "two", raw)
+    truth = tmp_path / "truth2.yaml"
+    truth.write_text("seed: 1\nvalues: {glazing_dirt_correction: 0.9}\n")
+    runner = CliRunner()
+    result = runner.invoke(app, ["synth", str(two), "--truth", str(truth)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["calibrate", str(two), "--measured",
+                                 str(tmp_path / "two" / "run" / "truth" / "measured.csv"),
+                                 "--method", "deterministic", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    flat = " ".join(result.output.split())
+    assert "no held-out days of heating_power_w" in flat
+    record = json.loads((tmp_path / "two" / "run" / "calibration" / "calibration.json")
+                        .read_text())
+    rows = [r for r in record["heldout"] if r["model"] == "deterministic_physical"]
+    assert {r["output"] for r in rows} == {"zone_air_temperature_c"}
+    daily = next(r for r in rows if r["resolution"] == "daily")
+    assert daily["n"] == 1 and daily["rmse"] is None and daily["mcrps"] is not None
+    hourly = next(r for r in rows if r["resolution"] == "hourly")
+    assert hourly["n"] == 24 and hourly["rmse"] > 0

@@ -188,11 +188,17 @@ def print_run(run, console: Console) -> None:
     for r in run.heldout.to_dict("records"):
         r = {k: (None if _missing(v) else v) for k, v in r.items()}
         temperature = r["cv_rmse"] is None
+
+        def shown(value, spec: str, unit: str = "") -> str:
+            # None: a metric undefined on the held-out rows (one value: no n − 1 form)
+            return "-" if value is None else f"{value:{spec}}{unit}"
+
+        unit = f" {r['unit']}"
         held.add_row(r["model"], r["output"], r["resolution"],
-                     f"{r['rmse']:.3g} {r['unit']}" if temperature else f"{r['cv_rmse']:.1%}",
-                     f"{r['mbe']:.3g} {r['unit']}" if temperature else f"{r['nmbe']:+.1%}",
-                     f"{r['mcrps']:.3g} {r['unit']}" if temperature or r["nmcrps"] is None
-                     else f"{r['nmcrps']:.1%}",
+                     shown(r["rmse"], ".3g", unit) if temperature else shown(r["cv_rmse"], ".1%"),
+                     shown(r["mbe"], ".3g", unit) if temperature else shown(r["nmbe"], "+.1%"),
+                     shown(r["mcrps"], ".3g", unit) if temperature or r["nmcrps"] is None
+                     else shown(r["nmcrps"], ".1%"),
                      r["guideline14"] or "-")
     console.print(held)
     if run.posterior is not None:

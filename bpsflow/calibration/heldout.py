@@ -58,8 +58,15 @@ def score(model: str, resolution: str, outputs: np.ndarray, observed: np.ndarray
         record = {"model": model, "output": output, "resolution": resolution,
                   "unit": units.get(output, ""), "n": int(mine.sum()),
                   "members": int(members.shape[1]),
-                  "rmse": rmse(y, point), "mbe": mbe(y, point),
                   "mcrps": float(mcrps(y, members).value)}
+        if len(y) < 2:
+            # one held-out value (a single held-out day, daily): the (n − 1) metrics of
+            # eq. 1-2 are undefined, and a table of them would be a number with no meaning
+            record.update(rmse=None, mbe=None, cv_rmse=None, nmbe=None, guideline14=None,
+                          nmcrps=None if temperature else _finite(nmcrps(y, members)))
+            records.append(record)
+            continue
+        record.update(rmse=rmse(y, point), mbe=mbe(y, point))
         if temperature:
             record.update(cv_rmse=None, nmbe=None, nmcrps=None, guideline14=None)
         else:

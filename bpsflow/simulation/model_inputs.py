@@ -47,3 +47,20 @@ def check_model_inputs(config: Config) -> None:
             raise BpsflowError(f"model.boundary.file: {exc.message}",
                                source=exc.source or boundary.file) from None
     check_distribution_support(config)
+    check_thermostat_zones(config)
+
+
+def check_thermostat_zones(config: Config) -> None:
+    """Refuse ``model.thermostat_zones`` naming a zone the model lacks, on every backend."""
+    from bpsflow.simulation.idf import model_objects
+    from bpsflow.simulation.setpoints import zone_names
+
+    wanted = config.model.thermostat_zones
+    if not wanted:
+        return
+    zones = {zone.upper(): zone for zone in zone_names(model_objects(config.model))}
+    for i, zone in enumerate(wanted):
+        if zone.upper() not in zones:
+            raise BpsflowError(f"model.thermostat_zones[{i}]: '{zone}' is not a zone of the "
+                               f"model (its zones: {', '.join(zones.values()) or 'none'})",
+                               source=config.source)

@@ -195,6 +195,9 @@ def prepare_run_dir(run_dir: Path, where: str = "execution.run_dir (or --run-dir
     except PermissionError:
         raise BpsflowError(f"{where}: cannot create {run_dir}: no permission to write in "
                            f"{_nearest_existing(run_dir)}; expected a writable folder") from None
+    except OSError as exc:  # a read-only file system, a path under /proc
+        raise BpsflowError(f"{where}: cannot create {run_dir}: {exc.strerror or exc}; "
+                           f"expected a folder bpsflow may create and write in") from None
     if not os.access(run_dir, os.W_OK | os.X_OK):
         raise BpsflowError(f"{where}: {run_dir} is not writable; expected a folder bpsflow may "
                            f"write in")
@@ -366,12 +369,22 @@ def ensemble_gap_note(run_dir: Path, results: pd.DataFrame) -> str | None:
     Scores over a partial ensemble are still computed (a crashed simulation never stops
     the others), but a user must see that the ensemble is smaller than designed.
     """
+    from bpsflow.sampling import SAMPLES_FILE
+
     records = manifest_records(run_dir)
-    if not records:
+    designed = set(records)
+    samples_path = Path(run_dir) / SAMPLES_FILE
+    if samples_path.is_file():
+        try:
+            # an interrupted run's manifest holds only what finished (or nothing)
+            designed |= set(read_parquet(samples_path, columns=["instance"])["instance"])
+        except Exception:  # unreadable samples: the manifest is all there is to compare
+            pass
+    if not designed:
         return None
     present = set(pd.unique(results["instance"])) if len(results) else set()
     failed = sorted(i for i, r in records.items() if r.status != "ok")
-    missing = sorted(set(records) - present - set(failed))
+    missing = sorted(designed - present - set(failed))
     if not failed and not missing:
         return None
     parts = []
@@ -379,7 +392,7 @@ def ensemble_gap_note(run_dir: Path, results: pd.DataFrame) -> str | None:
         parts.append(f"{len(failed)} failed (instance(s) {', '.join(map(str, failed[:5]))}"
                      f"{', ...' if len(failed) > 5 else ''})")
     if missing:
-        parts.append(f"{len(missing)} without results")
-    return (f"the ensemble has {len(present)} of {len(records)} instances: "
+        parts.append(f"{len(missing)} not run or without results")
+    return (f"the ensemble has {len(present)} of {len(designed)} instances: "
             f"{' and '.join(parts)}; scores are over the {len(present)} that ran "
-            f"('bpsflow run --retry-failed' runs the failed ones again)")
+            f"('bpsflow run' runs the rest; --retry-failed runs the failed ones again)")

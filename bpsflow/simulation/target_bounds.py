@@ -261,9 +261,24 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
         if values.size == 0:
             continue
         low, high = float(values.min()), float(values.max())
+        middle = float(np.median(values[values > 0])) if (values > 0).any() else 0.0
+        middle_low = middle_high = middle
         for parameter in parameters:
             a, b = _reach(parameter)
             low, high = _combine(parameter.mode, low, high, a, b)
+            middle_low, middle_high = _combine(parameter.mode, middle_low, middle_high, a, b)
+        if quantity in clipped_at_zero and quantity != "wind_direction" and middle > 0 \
+                and middle_high <= 0:
+            # clipping at zero is for an offset at night or in calm hours; a design that takes
+            # the typical hour to zero at every draw has removed the quantity, not perturbed it
+            names = ", ".join(p.name for p in parameters)
+            raise BpsflowError(
+                f"parameters ({names}): even the largest value of the design takes the "
+                f"weather's typical {quantity} ({middle:.6g} {unit}, the median of its non-zero "
+                f"hours) to {middle_high:.6g} {unit}, which is clipped to 0: the perturbation "
+                f"removes the quantity. Check the distribution's sign, unit and bounds (an "
+                f"offset is a few {unit}; a relative change lies above -1)",
+                source=config.source)
         below = low < valid_low and quantity not in clipped_at_zero
         # wind direction is taken modulo 360
         if below or (high > valid_high and quantity != "wind_direction"):
