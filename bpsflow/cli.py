@@ -277,6 +277,13 @@ def check(config: Path = ConfigArg,
     chosen = choose_backend(cfg, err_console.print)
     report = chosen.check(cfg)
     report.notes.extend(inert_targets(cfg))
+    if report.controlled_zones:
+        from bpsflow.simulation.idf import model_objects
+        from bpsflow.simulation.setpoints import sizing_note
+
+        sizing = sizing_note(cfg, model_objects(cfg.model))
+        if sizing:
+            report.notes.append(sizing)
     trial_run = getattr(chosen, "trial_run", None)
     if run and trial_run is not None:
         seconds = trial_run(cfg)

@@ -219,3 +219,11 @@ def test_boundary_temperatures_in_kelvin_are_refused(tmp_path):
     raw["model"]["boundary"]["file"] = str(path)
     assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), "kelvin.csv",
                        "model.boundary.file", "kelvin in a °C column?")
+
+
+def test_an_output_key_that_names_nothing_in_the_model_is_refused_by_check(tmp_path):
+    raw = _surrogate_raw()
+    raw["outputs"]["zone_air_temperature_c"]["key"] = "Cel"
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "outputs.zone_air_temperature_c.key", "'Cel' names nothing in the model",
+                       "did you mean 'Cell'")

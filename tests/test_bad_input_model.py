@@ -498,3 +498,41 @@ def test_check_notes_a_relative_parameter_on_a_zero_field(tmp_path):
     assert "glazing_infrared_transmittance (relative) cannot move 1 field(s) whose model " \
            "value is 0" in flat
     assert "south_wall_insulation_conductivity (relative) cannot" not in flat
+
+
+def test_a_wrong_key_of_a_known_variable_is_named_as_the_key(tmp_path):
+    """EnergyPlus lists the variable in its .rdd but reports nothing for the key: the hint
+    names the key, not a 'did you mean' the same variable."""
+    import numpy as np
+    import pandas as pd
+
+    from bpsflow.config import OutputVariable
+    from bpsflow.simulation.energyplus import _missing_output_hint
+
+    (tmp_path / "eplusout.rdd").write_text(
+        "Program Version,EnergyPlus\nVar Type (reported time step),Var Report Type,Variable "
+        "Name [Units]\nZone,Average,Zone Mean Air Temperature [C]\n")
+    spec = OutputVariable(variable="Zone Mean Air Temperature", key="SPACE9-1", unit="C")
+    raw = pd.DataFrame({"key": pd.Series([], dtype=str)})
+    hint = _missing_output_hint(spec, raw, np.array([], bool), np.array([], dtype=object),
+                                tmp_path)
+    assert "nothing for key 'SPACE9-1'" in hint and "did you mean" not in hint
+
+
+def test_autosizing_under_the_tests_setpoints_is_said():
+    from bpsflow.config import load_config
+    from bpsflow.simulation.idf import parse_idf_text
+    from bpsflow.simulation.setpoints import sizing_note
+
+    from conftest import ROOT
+
+    config = load_config(ROOT / "configs" / "i600.yaml")
+    sized = parse_idf_text("Coil:Heating:Electric, Reheat, , 1.0, autosize, , ;\n")
+    fixed = parse_idf_text("Coil:Heating:Electric, Reheat, , 1.0, 5000, , ;\n")
+    note = sizing_note(config, sized)
+    assert note is not None and "autosizes 1 field(s)" in note and "mode: model" in note
+    assert sizing_note(config, fixed) is None
+    own = config.model_copy(deep=True)
+    for test in own.model.tests:
+        test.mode, test.setpoint_c, test.setback_c = "model", None, None
+    assert sizing_note(own, sized) is None

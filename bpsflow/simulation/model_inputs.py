@@ -48,6 +48,47 @@ def check_model_inputs(config: Config) -> None:
                                source=exc.source or boundary.file) from None
     check_distribution_support(config)
     check_thermostat_zones(config)
+    check_output_keys(config)
+
+
+#: Output keys that name no object of the model (site, building and wildcard keys).
+_MODEL_WIDE_KEYS = {"*", "ENVIRONMENT", "WHOLE BUILDING", "FACILITY", "SIMHVAC"}
+
+
+def check_output_keys(config: Config) -> None:
+    """Refuse an output ``key`` that names nothing in the model, before anything runs.
+
+    A key is the name of what the variable reports for (a zone, surface,
+    equipment or node), so it is a field of some object of the model or its
+    snippets. A model with ``HVACTemplate`` objects is left to the engine:
+    ExpandObjects makes names the file does not hold.
+    """
+    import difflib
+
+    from bpsflow.simulation.idf import model_objects
+    from bpsflow.simulation.setpoints import zone_names
+
+    keyed = {name: spec for name, spec in config.outputs.items()
+             if spec.variable is not None and spec.key
+             and spec.key.strip().upper() not in _MODEL_WIDE_KEYS}
+    if not keyed:
+        return
+    idf = model_objects(config.model)
+    if any(o.type.startswith("HVACTEMPLATE:") for o in idf.objects):
+        return
+    values = {field.strip().upper() for o in idf.objects for field in o.fields if field.strip()}
+    for name, spec in keyed.items():
+        key = str(spec.key).strip()
+        if key.upper() in values:
+            continue
+        names = zone_names(idf) if spec.variable and spec.variable.upper().startswith("ZONE ") \
+            else sorted({o.name for o in idf.objects if o.name})
+        close = difflib.get_close_matches(key, names, n=3, cutoff=0.5)
+        hint = (f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else
+                f"; the model's zones: {', '.join(zone_names(idf)) or 'none'}")
+        raise BpsflowError(f"outputs.{name}.key: '{key}' names nothing in the model (expected "
+                           f"the zone, surface, equipment or node that '{spec.variable}' "
+                           f"reports for){hint}", source=config.source)
 
 
 def check_thermostat_zones(config: Config) -> None:

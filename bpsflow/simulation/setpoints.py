@@ -101,6 +101,26 @@ def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
     return texts[0], texts[1]
 
 
+def sizing_note(config: Config, idf: IdfModel) -> str | None:
+    """A note when the tests' setpoints also drive the model's autosizing, else None.
+
+    The tool's schedules hold on every day, design days included, so an
+    autosized system is sized for each test's setpoints (a heating test's
+    cooling setpoint is off: its cooling coils size to nothing) and for each
+    instance's inputs.
+    """
+    if all(t.mode == "model" for t in config.model.tests):
+        return None
+    autosized = sum(field.strip().upper() == "AUTOSIZE" for o in idf.objects for field in o.fields)
+    if not autosized:
+        return None
+    return (f"the model autosizes {autosized} field(s): its design days run under the tests' "
+            f"setpoints (the tool's schedules hold on every day), so equipment is sized anew "
+            f"for each test and instance (a heating test sizes cooling to nothing). To compare "
+            f"one fixed system, hard-size it (EnergyPlus's Component Sizing table of one run), "
+            f"or run the model's own controls with mode: model")
+
+
 def control_objects_text() -> str:
     """The control-type schedule and dual setpoint every rewired thermostat points to."""
     return (f"Schedule:Constant,\n  {CONTROL_TYPE_SCHEDULE},\n  ,\n  "

@@ -69,6 +69,12 @@ def _missing_output_hint(spec, raw: pd.DataFrame, window: np.ndarray,
     if directory is not None:
         variable_names, meter_names = reported_names(directory)
         names = meter_names if spec.meter is not None else variable_names
+        if spec.variable is not None and spec.key and \
+                spec.variable.upper() in {n.upper() for n in names}:
+            # the variable exists: the key is what names nothing it reports for
+            return (f"; EnergyPlus can report '{spec.variable}', but nothing for key "
+                    f"'{spec.key}': expected the name of the zone, surface, equipment or node "
+                    f"it reports for (outputs.*.key)")
         if names:
             wanted = str(spec.meter or spec.variable)
             close = difflib.get_close_matches(wanted, names, n=3, cutoff=0.6) or \
