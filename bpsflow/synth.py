@@ -31,6 +31,9 @@ from bpsflow.simulation.target_bounds import check_sample_values
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
 EQUIVALENT_TRUTH_FILE = "truth_equivalent.json"
+#: What a synthesis writes in its folder (an earlier one's are moved aside first).
+SYNTH_FILES = (MEASURED_FILE, TRUTH_FILE, EQUIVALENT_TRUTH_FILE, "detailed.csv",
+               "sensor_calibration.csv", "detailed.json")
 
 
 class Noise(BaseModel):
@@ -225,6 +228,7 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     """
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.ensemble import console, simulate_samples
+    from bpsflow.simulation.rundir import move_aside
 
     out_dir.mkdir(parents=True, exist_ok=True)
     every_output = sorted(config.outputs)
@@ -254,6 +258,11 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     backend = simulator.name
     measured = measurements_from_outputs(config, outputs, truth)
     path = out_dir / MEASURED_FILE
+    # earlier synthetic data (perhaps of another truth) are kept, not overwritten
+    earlier = move_aside(out_dir, SYNTH_FILES) if path.exists() else None
+    if earlier is not None:
+        console.print(f"the earlier synthetic data in {out_dir} were moved to {earlier}",
+                      highlight=False)
     write_csv(measured, path, index_label="timestamp", float_format="%.6g")
     # every measured output's noise as applied, the defaults too: the record alone says
     # what was added to the measurements

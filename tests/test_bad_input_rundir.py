@@ -676,3 +676,22 @@ def test_finished_instances_of_another_model_are_never_resumed_or_scored(tmp_pat
     text = assert_ok(invoke("run", config, "--no-progress"))
     assert "ran 3, skipped 0" in " ".join(text.split())
     assert list((run_dir / "previous").glob("*/simulation.json"))
+
+
+def test_synth_again_keeps_the_earlier_synthetic_data(tmp_path):
+    raw = short_raw()
+    raw["model"]["backend"] = "surrogate"
+    config = write_config(tmp_path, raw)
+    truths = []
+    for seed in (3, 4):
+        truth = tmp_path / f"truth{seed}.yaml"
+        truth.write_text(f"seed: {seed}\nvalues: {{}}\n")
+        truths.append(truth)
+    assert_ok(invoke("synth", config, "--truth", truths[0]))
+    folder = tmp_path / "run" / "truth"
+    first = (folder / "measured.csv").read_text()
+    text = assert_ok(invoke("synth", config, "--truth", truths[1]))
+    assert "moved to" in " ".join(text.split())
+    kept = list((folder / "previous").glob("*/measured.csv"))
+    assert len(kept) == 1 and kept[0].read_text() == first
+    assert (folder / "measured.csv").read_text() != first

@@ -513,3 +513,39 @@ def test_refine_recovers_the_truth_behind_bpsflow_synth_detailed(tmp_path):
     # log α and n of one class are strongly correlated (about -0.9), so they tend to miss a
     # 90 % interval together: allow one class pair and one more
     assert inside_90 >= len(summary["parameters"]) - 3
+
+
+def test_readings_in_kelvin_cut_short_or_outside_the_periods_are_refused(tmp_path):
+    make_detailed(tmp_path / "d", days=1, calibration_steps=20)
+    good = pd.read_csv(tmp_path / "d" / "detailed.csv")
+    config = load_config(write_config(tmp_path, i600_raw()))
+    sensor = next(c for c in good.columns if c.endswith("_c"))
+    good.assign(**{sensor: good[sensor] + 273.15}).to_csv(tmp_path / "d" / "detailed.csv",
+                                                          index=False)
+    with pytest.raises(BpsflowError, match=rf"column '{sensor}'.*kelvin in a °C column"):
+        refine(config, tmp_path / "d")
+    text = good.to_csv(index=False).splitlines()
+    text[5] = ",".join(text[5].split(",")[:10])
+    (tmp_path / "d" / "detailed.csv").write_text("\n".join(text) + "\n")
+    with pytest.raises(BpsflowError, match=r"line 6: 10 fields, but the header has"):
+        refine(config, tmp_path / "d")
+    shifted = good.assign(timestamp=(pd.to_datetime(good["timestamp"])
+                                     + pd.Timedelta(days=60)).astype(str))
+    shifted.to_csv(tmp_path / "d" / "detailed.csv", index=False)
+    with pytest.raises(BpsflowError, match=r"no reading falls in the config's run periods"):
+        refine(config, tmp_path / "d")
+
+
+def test_refine_again_keeps_the_earlier_refinement(tmp_path):
+    make_detailed(tmp_path / "d", days=2, calibration_steps=50)
+    config = write_config(tmp_path, i600_raw())
+    out = tmp_path / "out"
+    (tmp_path / "notes.txt").write_text("mine")
+    for _ in range(2):
+        result = CliRunner().invoke(app, ["refine", str(config), "--detailed",
+                                          str(tmp_path / "d"), "--out", str(out)])
+        assert result.exit_code == 0, result.output
+    assert "earlier refinement" in " ".join(result.output.split())
+    earlier = list((out / "previous").glob("*"))
+    assert len(earlier) == 1 and (earlier[0] / "refine.json").is_file()
+    assert (earlier[0] / "refined.yaml").is_file() and (out / "refined.yaml").is_file()

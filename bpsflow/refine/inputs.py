@@ -184,6 +184,40 @@ def locate(path: Path) -> tuple[Path, Path, Path]:
     return detailed, directory / CALIBRATION_FILE, directory / METADATA_FILE
 
 
+#: Air and surface temperatures (°C) a building's sensors can read; outside them the file
+#: is in kelvin or °F, or a sensor is broken.
+SENSOR_RANGE_C = (-50.0, 100.0)
+
+
+def _check_complete_rows(path: Path) -> None:
+    """Refuse a row with fewer fields than the header (a file cut mid-row)."""
+    import csv
+
+    with open(path, newline="", encoding="utf-8", errors="replace") as handle:
+        reader = csv.reader(handle)
+        header = next(reader, [])
+        for record in reader:
+            if record and len(record) != len(header):
+                raise BpsflowError(f"line {reader.line_num}: {len(record)} fields, but the "
+                                   f"header has {len(header)} (a file cut short or a stray "
+                                   f"separator?)", source=path)
+
+
+def _check_temperatures(frame: pd.DataFrame, sensors: list[str], path: Path) -> None:
+    """Refuse a temperature sensor's readings outside :data:`SENSOR_RANGE_C`."""
+    low, high = SENSOR_RANGE_C
+    for column in sensors:
+        values = frame[column].to_numpy(dtype=float)
+        outside = np.isfinite(values) & ((values < low) | (values > high))
+        if outside.any():
+            value = float(values[np.flatnonzero(outside)[0]])
+            hint = ("; kelvin in a °C column?" if low <= value - 273.15 <= high else
+                    "; °F in a °C column?" if low <= (value - 32) / 1.8 <= high else "")
+            raise BpsflowError(f"column '{column}': {value:g} °C is outside the {low:g}..{high:g} "
+                               f"°C a building's sensor reads ({int(outside.sum())} value(s)){hint}",
+                               source=path)
+
+
 def read_detailed(path: Path, surfaces: list[str]) -> Detailed:
     """Read and check the detailed measurements (``detailed.csv`` or the folder holding it).
 
@@ -208,8 +242,10 @@ def read_detailed(path: Path, surfaces: list[str]) -> Detailed:
     if not frame.index.is_monotonic_increasing or frame.index.has_duplicates:
         raise BpsflowError(f"timestamps must increase strictly (column '{TIMESTAMP}')",
                            source=detailed_path)
+    _check_complete_rows(detailed_path)
     calibration = contract.read_calibration(calibration_path)
     sensors = temperature_columns(list(frame.columns))
+    _check_temperatures(frame, sensors, detailed_path)
     calibrated = [c for c in calibration.columns if c not in (CALIBRATION_STEP,
                                                               CALIBRATION_REFERENCE)]
     uncalibrated = [c for c in sensors if c not in calibrated]

@@ -61,6 +61,7 @@ import pandas as pd
 from scipy import stats
 
 from bpsflow.config import Config, Parameter, period_dates
+from bpsflow.errors import BpsflowError
 from bpsflow.refine import estimators as est
 from bpsflow.refine import inputs as io
 from bpsflow.refine.parameters import (
@@ -152,6 +153,28 @@ class Refinement:
     notes: list[str] = field(default_factory=list)
 
 
+def _check_in_periods(config: Config, detailed: io.Detailed) -> None:
+    """Refuse detailed readings none of which fall in the config's run periods.
+
+    The refined boundary temperatures replace the hours of the readings; readings of
+    other days would refine nothing the model simulates, while their sensor
+    errors still narrowed its inputs.
+    """
+
+    stamps = detailed.frame.index
+    inside = np.zeros(len(stamps), bool)
+    spans = []
+    for period in config.model.periods:
+        first, last = period_dates(period, config.model.year)
+        start, end = pd.Timestamp(first), pd.Timestamp(last) + pd.Timedelta(days=1)
+        inside |= (stamps > start) & (stamps <= end)
+        spans.append(f"{period.name}: {first}..{last}")
+    if len(stamps) and not inside.any():
+        raise BpsflowError(f"no reading falls in the config's run periods ({'; '.join(spans)}, "
+                           f"model.year {config.model.year}); the file runs from "
+                           f"{stamps[0]} to {stamps[-1]}", source=detailed.detailed_path)
+
+
 def refine(config: Config, detailed_path: Path,
            min_delta_t_sigmas: float = est.CONVECTION_MIN_SIGMAS,
            min_irradiance_w_m2: float = est.MIN_IRRADIANCE_W_M2) -> Refinement:
@@ -177,6 +200,7 @@ def refine(config: Config, detailed_path: Path,
     """
     surfaces = list(config.model.boundary.surfaces) if config.model.boundary else []
     detailed = io.read_detailed(detailed_path, surfaces)
+    _check_in_periods(config, detailed)
     meta = detailed.metadata
     calibration = est.sensor_calibration(
         detailed.calibration.drop(columns=[c for c in (io.CALIBRATION_STEP,

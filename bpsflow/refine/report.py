@@ -40,6 +40,17 @@ def write_refinement(refinement: Refinement, out_dir: Path,
     """
     out_dir = Path(out_dir).resolve()
     config_path = Path(config_path).resolve() if config_path else out_dir / REFINED_CONFIG
+    if (out_dir / REFINE_JSON).is_file():
+        # an earlier refinement (perhaps of other readings) is kept, not overwritten
+        from bpsflow.simulation.rundir import move_aside
+
+        # only what a refinement writes: --out may be a folder that holds the user's files
+        names = [REFINE_JSON, CONVECTION_CSV, "figures"]
+        if config_path.parent == out_dir:
+            names += [REFINED_CONFIG if config_path.name == REFINED_CONFIG else config_path.name,
+                      BOUNDARY_FILE] + [p.name for p in out_dir.glob("*_samples.csv")]
+        refinement.notes.append(f"the earlier refinement in {out_dir} was moved to "
+                                f"{move_aside(out_dir, names)}")
     (out_dir / "figures").mkdir(parents=True, exist_ok=True)
     config_path.parent.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
