@@ -415,12 +415,14 @@ def synth(config: Path = ConfigArg,
           no_progress: bool = NoProgressOption) -> None:
     """Run a truth instance and write synthetic measurements (measured.csv)."""
     from bpsflow.simulation.rundir import prepare_run_dir
-    from bpsflow.synth import load_truth, synthesize, write_equivalent_truth
+    from bpsflow.synth import load_truth, synthesize, truth_notes, write_equivalent_truth
 
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     if backend is not None:
         cfg.model.backend = backend
     spec = load_truth(truth, cfg)
+    for note in truth_notes(cfg, spec):
+        err_console.print(f"[yellow]{truth.name}: {note}[/yellow]", highlight=False)
     # the other config is read before anything runs: a bad one loses nothing
     simpler = _load(equivalent_for, None) if equivalent_for is not None else None
     rd = _lock(cfg)

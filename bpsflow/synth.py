@@ -219,6 +219,26 @@ def measurements_from_outputs(config: Config, outputs: pd.DataFrame, truth: Trut
     return wide
 
 
+def truth_notes(config: Config, truth: Truth) -> list[str]:
+    """Notes for true values outside what the config's distributions can draw.
+
+    Allowed (a truth beyond the prior tests how a calibration fails), but a
+    prior that excludes the truth cannot cover it, so it is said.
+    """
+    from bpsflow.distributions import Constant, Sampler
+
+    notes = []
+    for name, value in truth.values.items():
+        distribution = config.parameter(name).distribution
+        if isinstance(distribution, (Constant, Sampler)):
+            continue
+        low, high = (float(v) for v in distribution.ppf(np.array([0.0, 1.0])))
+        if np.isfinite(low) and value < low or np.isfinite(high) and value > high:
+            notes.append(f"values.{name}: {value:g} lies outside its distribution's "
+                         f"{low:g}..{high:g}; a calibration with this prior cannot cover it")
+    return notes
+
+
 def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None = None,
                detailed: bool = False) -> Path:
     """Run the truth instance and write ``measured.csv`` and ``truth.json`` into ``out_dir``.

@@ -227,3 +227,17 @@ def test_an_output_key_that_names_nothing_in_the_model_is_refused_by_check(tmp_p
     assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
                        "outputs.zone_air_temperature_c.key", "'Cel' names nothing in the model",
                        "did you mean 'Cell'")
+
+
+def test_a_truth_beyond_the_prior_is_said_not_refused(tmp_path):
+    raw = _surrogate_raw()
+    parameter = next(p for p in raw["parameters"] if p["distribution"]["type"] == "normal"
+                     and "upper" in p["distribution"])
+    config = write_config(tmp_path, raw)
+    truth = tmp_path / "truth.yaml"
+    truth.write_text(yaml.safe_dump({"seed": 1, "values": {
+        parameter["name"]: parameter["distribution"]["upper"] + 1.0}}))
+    result = invoke("synth", config, "--truth", truth)
+    assert result.exit_code == 0, result.output
+    flat = " ".join((result.output + getattr(result, "stderr", "")).split())
+    assert f"values.{parameter['name']}" in flat and "cannot cover it" in flat
