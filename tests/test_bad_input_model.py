@@ -536,3 +536,25 @@ def test_autosizing_under_the_tests_setpoints_is_said():
     for test in own.model.tests:
         test.mode, test.setpoint_c, test.setback_c = "model", None, None
     assert sizing_note(own, sized) is None
+
+
+def test_the_tools_schedules_carry_type_limits():
+    """EnergyPlus warns in every run of a schedule without limits."""
+    from bpsflow.config import load_config
+    from bpsflow.simulation.idf import parse_idf_text
+    from bpsflow.simulation.setpoints import (
+        CONTROL_TYPE_LIMITS,
+        TEMPERATURE_LIMITS,
+        control_objects_text,
+        setpoint_schedules,
+    )
+
+    from conftest import ROOT
+
+    config = load_config(ROOT / "configs" / "i600.yaml")
+    heating, cooling = setpoint_schedules(config, config.model.periods[0])
+    objects = parse_idf_text(heating + cooling + control_objects_text()).objects
+    limits = {o.name for o in objects if o.type == "SCHEDULETYPELIMITS"}
+    assert limits == {TEMPERATURE_LIMITS, CONTROL_TYPE_LIMITS}
+    for schedule in (o for o in objects if o.type.startswith("SCHEDULE:")):
+        assert schedule.fields[1] in limits, schedule.name

@@ -217,6 +217,15 @@ def print_run(run, console: Console) -> None:
         console.print(f"emulator hold-out ({len(test.test_runs)} runs): R² {test.r2:.4f}; "
                       + ", ".join(f"{o} R² {v['r2']:.4f} RMSE {v['rmse']:.3g}"
                                   for o, v in test.per_output.items()))
+        if len(test.test_runs) < FEW_TEST_RUNS:
+            console.print(f"[yellow]the emulator was checked on {len(test.test_runs)} held-out "
+                          f"run(s): too few to judge it (raise calibration.design.runs or "
+                          f"calibration.emulator.test_fraction for at least "
+                          f"{FEW_TEST_RUNS})[/yellow]", highlight=False)
+
+
+#: Held-out runs below which the emulator's check says little (its R² on one run is noise).
+FEW_TEST_RUNS = 5
 
 
 def _missing(value) -> bool:

@@ -34,6 +34,8 @@ COOLING_OFF_C = 100.0
 HEATING_SCHEDULE = "BPSFLOW Heating Setpoint"
 COOLING_SCHEDULE = "BPSFLOW Cooling Setpoint"
 CONTROL_TYPE_SCHEDULE = "BPSFLOW Thermostat Control Type"
+TEMPERATURE_LIMITS = "BPSFLOW Temperature"
+CONTROL_TYPE_LIMITS = "BPSFLOW Control Type"
 DUAL_SETPOINT = "BPSFLOW Dual Setpoint"
 #: ``ZoneControl:Thermostat`` control type 4 is a dual (heating and cooling) setpoint.
 DUAL_SETPOINT_CONTROL_TYPE = 4
@@ -84,7 +86,7 @@ def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
     profiles = [day_setpoints(by_day.get(day)) for day in days]
     texts = []
     for which, name in ((0, HEATING_SCHEDULE), (1, COOLING_SCHEDULE)):
-        fields = [name, ""]
+        fields = [name, TEMPERATURE_LIMITS]
         runs: list[tuple[date, list[tuple[int, float]]]] = []
         for day, profile in zip(days, profiles):
             if runs and runs[-1][1] == profile[which]:
@@ -98,7 +100,11 @@ def setpoint_schedules(config: Config, period: Period) -> tuple[str, str]:
             for until, value in day_profile:
                 fields.extend([f"Until: {until:02d}:00", f"{value:g}"])
         texts.append("Schedule:Compact,\n  " + ",\n  ".join(fields) + ";\n")
-    return texts[0], texts[1]
+    # the limits object travels with the heating schedule: EnergyPlus warns of a schedule
+    # without limits in every run
+    limits = (f"ScheduleTypeLimits,\n  {TEMPERATURE_LIMITS},\n  {HEATING_OFF_C:g},\n  "
+              f"{COOLING_OFF_C:g},\n  Continuous,\n  Temperature;\n")
+    return limits + texts[0], texts[1]
 
 
 def sizing_note(config: Config, idf: IdfModel) -> str | None:
@@ -123,7 +129,8 @@ def sizing_note(config: Config, idf: IdfModel) -> str | None:
 
 def control_objects_text() -> str:
     """The control-type schedule and dual setpoint every rewired thermostat points to."""
-    return (f"Schedule:Constant,\n  {CONTROL_TYPE_SCHEDULE},\n  ,\n  "
+    return (f"ScheduleTypeLimits,\n  {CONTROL_TYPE_LIMITS},\n  0,\n  4,\n  Discrete;\n\n"
+            f"Schedule:Constant,\n  {CONTROL_TYPE_SCHEDULE},\n  {CONTROL_TYPE_LIMITS},\n  "
             f"{DUAL_SETPOINT_CONTROL_TYPE};\n\n"
             f"ThermostatSetpoint:DualSetpoint,\n  {DUAL_SETPOINT},\n  {HEATING_SCHEDULE},\n  "
             f"{COOLING_SCHEDULE};\n")
