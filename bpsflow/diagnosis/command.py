@@ -83,8 +83,9 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
                   highlight=False)
     for note in result.notes:
         console.print(f"[yellow]note: {note}[/yellow]", highlight=False)
-    console.print(f"wrote {paths['json']}, {paths['markdown']} and figures in {out / 'figures'}",
-                  highlight=False)
+    figures = sum(1 for path in paths.values() if path.suffix == ".png")
+    console.print(f"wrote {paths['json']}, {paths['markdown']} and {figures} figure(s) in "
+                  f"{out / 'figures'}", highlight=False)
     return result
 
 
