@@ -195,8 +195,8 @@ def require_same_design(config: Config, run_dir: Path, command: str) -> None:
 
 SIMULATION_FILE = "simulation.json"
 
-#: Output keys that say how a value is read or judged, not what is simulated.
-_OUTPUT_COSMETIC = ("plausible", "label", "description")
+#: Output keys that say how a value is named, read or judged, not what is simulated.
+_OUTPUT_COSMETIC = ("plausible", "unit", "label", "description")
 
 
 def simulation_inputs(config: Config) -> dict[str, Any]:
