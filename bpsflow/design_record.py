@@ -218,14 +218,28 @@ def simulation_inputs(config: Config) -> dict[str, Any]:
     inputs["model.idf (sha256)"] = _digest(config.model.idf)
     inputs["model.idf_objects (sha256)"] = [_digest(p) for p in config.model.idf_objects]
     inputs["model.weather (sha256)"] = _digest(config.model.weather)
-    idf = Path(config.model.idf)
-    beside = sorted(p for p in idf.parent.iterdir() if p.is_file() and p != idf
-                    and p.suffix.lower() in (".csv", ".txt")) if idf.parent.is_dir() else []
-    if beside:
-        inputs["files beside model.idf (sha256)"] = {p.name: _digest(p) for p in beside}
+    read = _schedule_files(config)
+    if read:
+        inputs["Schedule:File files (sha256)"] = {p.name: _digest(p) for p in read}
     for name, output in config.outputs.items():
         inputs[f"outputs.{name}"] = output.model_dump(mode="json", exclude=set(_OUTPUT_COSMETIC))
     return jsonable(inputs)
+
+
+def _schedule_files(config: Config) -> list[Path]:
+    """The files the model's ``Schedule:File`` objects read (relative to the file naming them)."""
+    from bpsflow.simulation.idf import model_objects
+
+    found = set()
+    for schedule in model_objects(config.model).of_type("SCHEDULE:FILE"):
+        name = schedule.fields[2].strip() if len(schedule.fields) > 2 else ""
+        if not name:
+            continue
+        base = Path(schedule.source or config.model.idf).parent
+        path = Path(name) if Path(name).is_absolute() else base / name
+        if path.is_file():
+            found.add(path.resolve())
+    return sorted(found)
 
 
 def read_simulation_record(run_dir: Path) -> dict[str, Any] | None:
