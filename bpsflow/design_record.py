@@ -121,6 +121,11 @@ def changed_keys(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]
     return changes
 
 
+def _listed(changes: list[str]) -> str:
+    """The first three changes, and how many more."""
+    return "; ".join(changes[:3]) + (f"; and {len(changes) - 3} more" if len(changes) > 3 else "")
+
+
 def _short(value: Any, limit: int = 80) -> str:
     text = json.dumps(value) if not isinstance(value, str) else value
     return text if len(text) <= limit else text[:limit - 3] + "..."
@@ -184,7 +189,7 @@ def require_same_design(config: Config, run_dir: Path, command: str) -> None:
     changes = design_changes(config, run_dir)
     if not changes:
         return
-    shown = "; ".join(changes[:3]) + (f"; and {len(changes) - 3} more" if len(changes) > 3 else "")
+    shown = _listed(changes)
     raise BpsflowError(
         f"the config's design changed since the samples in {run_dir} were drawn ({shown}); "
         f"'{command}' would mix results of the old and the new design. Draw the new design "
@@ -285,7 +290,7 @@ def require_same_simulation(config: Config, run_dir: Path, command: str,
         changes.insert(0, f"backend: {record['backend']} -> {backend}")
     if not changes:
         return
-    shown = "; ".join(changes[:3]) + (f"; and {len(changes) - 3} more" if len(changes) > 3 else "")
+    shown = _listed(changes)
     raise BpsflowError(
         f"the instances in {run_dir} simulated another model than the config's ({shown}); "
         f"'{command}' would "
