@@ -740,7 +740,11 @@ def parse_yaml(text: str) -> Any:
 
 def _read_yaml(path: Path) -> dict:
     if not path.is_file():
-        raise BpsflowError(f"config file not found: {path}")
+        what = ("is a folder" if path.is_dir() else "is not a regular file" if path.exists()
+                else "not found")
+        # the words "config file not found" stay for a missing file (scripts match them)
+        raise BpsflowError(f"config file not found: {path}" if what == "not found" else
+                           f"config file {path} {what}; expected a YAML config file")
     try:
         raw = parse_yaml(read_user_text(path, "a YAML config"))
     except yaml.YAMLError as exc:

@@ -117,8 +117,21 @@ def changed_keys(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]
     for key in list(recorded) + [k for k in current if k not in recorded]:
         old, new = recorded.get(key, "-"), current.get(key, "-")
         if old != new:
-            changes.append(f"{key}: {_short(old)} -> {_short(new)}")
+            changes += _leaf_changes(key, old, new)
     return changes
+
+
+def _leaf_changes(key: str, old: Any, new: Any) -> list[str]:
+    """The innermost keys that differ (``model.tests[0].setpoint_c: 30 -> 28``)."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [change for k in list(old) + [k for k in new if k not in old]
+                if old.get(k, "-") != new.get(k, "-")
+                for change in _leaf_changes(f"{key}.{k}", old.get(k, "-"), new.get(k, "-"))]
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new) and \
+            any(isinstance(v, (dict, list)) for v in old):
+        return [change for i, (a, b) in enumerate(zip(old, new)) if a != b
+                for change in _leaf_changes(f"{key}[{i}]", a, b)]
+    return [f"{key}: {_short(old)} -> {_short(new)}"]
 
 
 def _listed(changes: list[str]) -> str:

@@ -368,6 +368,10 @@ def _atomic(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> Path:
         os.chmod(temporary, 0o666 & ~_UMASK)
         # atomic within one file system, hence the temporary file in the same folder
         os.replace(temporary, path)
+    except OSError as exc:  # a full disk, a quota: the file named, the old one intact
+        temporary.unlink(missing_ok=True)
+        raise BpsflowError(f"cannot write {path}: {exc.strerror or type(exc).__name__}; the "
+                           f"earlier file, if any, is unchanged") from None
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise

@@ -25,7 +25,8 @@ def test_a_binary_config_is_refused_without_echoing_it(tmp_path):
 
 
 def test_a_folder_given_as_config_is_named(tmp_path):
-    assert_clean_error(invoke("check", tmp_path), str(tmp_path), "config file not found")
+    assert_clean_error(invoke("check", tmp_path), str(tmp_path),
+                       "is a folder; expected a YAML config file")
 
 
 @pytest.mark.parametrize("key, value", [("mean", float("nan")), ("std", float("inf"))])
@@ -241,3 +242,32 @@ def test_a_truth_beyond_the_prior_is_said_not_refused(tmp_path):
     assert result.exit_code == 0, result.output
     flat = " ".join((result.output + getattr(result, "stderr", "")).split())
     assert f"values.{parameter['name']}" in flat and "cannot cover it" in flat
+
+
+@pytest.mark.parametrize("section, needle", [
+    ({"outputs": ["heating_power_w", "heating_power_w"]}, "outputs: heating_power_w listed more"),
+    ({"outputs": []}, "the list is empty"),
+    ({"parameters": []}, "the list is empty"),
+])
+def test_calibration_lists_repeated_or_empty_are_named(tmp_path, section, needle):
+    raw = _surrogate_raw()
+    raw["calibration"] = section
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), needle)
+
+
+def test_a_diagnosis_extension_listed_twice_is_refused(tmp_path):
+    raw = _surrogate_raw()
+    raw["diagnosis"] = {"extensions": ["infiltration", "infiltration"]}
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "extensions: infiltration listed more than once")
+
+
+def test_a_simulation_change_names_the_innermost_key():
+    from bpsflow.design_record import changed_keys
+
+    before = {"model.tests": [{"name": "H", "setpoint_c": 30.0, "days": 2}],
+              "outputs.heat": {"key": "Cell", "scale": 1.0}}
+    after = {"model.tests": [{"name": "H", "setpoint_c": 28.0, "days": 2}],
+             "outputs.heat": {"key": "Zone", "scale": 1.0}}
+    assert changed_keys(before, after) == ["model.tests[0].setpoint_c: 30.0 -> 28.0",
+                                           "outputs.heat.key: Cell -> Zone"]

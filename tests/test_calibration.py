@@ -735,3 +735,43 @@ def test_outputs_of_tests_before_the_held_out_days_and_a_single_held_out_day(tmp
     assert daily["n"] == 1 and daily["rmse"] is None and daily["mcrps"] is not None
     hourly = next(r for r in rows if r["resolution"] == "hourly")
     assert hourly["n"] == 24 and hourly["rmse"] > 0
+
+
+def test_hold_out_and_data_gaps_are_refused_before_the_design_runs(tmp_path):
+    """Found after every design run had finished: a hold-out leaving one daily value, and a
+    measured file that stops early."""
+    config, measured, _ = _short_calibration_config(tmp_path)
+    raw = yaml.safe_load(config.read_text())
+    raw["calibration"]["holdout_days"] = 9               # 10 evaluated days: 1 left
+    (tmp_path / "long").mkdir()
+    long_holdout = write_config(tmp_path / "long", raw)
+    runner = CliRunner()
+    result = runner.invoke(app, ["calibrate", str(long_holdout), "--measured", str(measured),
+                                 "--method", "deterministic", "--no-progress"])
+    flat = " ".join(result.output.split())
+    assert result.exit_code == 2 and "calibration.holdout_days" in flat
+    assert "1 daily calibration value(s)" in flat
+    assert not (tmp_path / "long" / "run" / "calibration" / "design").exists()
+    short = pd.read_csv(measured).iloc[:-30]
+    short.to_csv(tmp_path / "short.csv", index=False)
+    result = runner.invoke(app, ["calibrate", str(config), "--measured",
+                                 str(tmp_path / "short.csv"), "--method", "deterministic",
+                                 "--no-progress"])
+    assert result.exit_code == 2 and "the measured data cover" in " ".join(result.output.split())
+    assert not (tmp_path / "run" / "calibration" / "design").exists()
+
+
+@pytest.mark.slow
+def test_a_calibration_into_the_folder_of_another_moves_that_one_aside(tmp_path):
+    config, measured, _ = _short_calibration_config(tmp_path)
+    out = tmp_path / "out"
+    runner = CliRunner()
+    for _ in range(2):
+        result = runner.invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                     "--method", "deterministic", "--out", str(out),
+                                     "--no-progress"])
+        assert result.exit_code == 0, result.output
+    assert "earlier calibration" in " ".join(result.output.split())
+    earlier = list((out / "previous").glob("*"))
+    assert len(earlier) == 1 and (earlier[0] / "calibration.json").is_file()
+    assert (earlier[0] / "figures").is_dir() and (out / "calibration.json").is_file()

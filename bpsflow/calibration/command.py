@@ -114,6 +114,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
                       "calibration")]
     for scenario, where in scenarios:
         workflow.check_scenario(config, scenario, where, measured, Path(measured_path))
+        workflow.check_holdout(config, settings, scenario)
     if method == "bayes":
         from bpsflow.calibration.bayes import configure_jax
 
@@ -148,6 +149,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
         console.print(f"wrote {paths['json']}" + (f", {paths['posterior']}"
                                                   if "posterior" in paths else "")
                       + f", {paths['heldout']} and figures in {paths['figures']}")
+        if "earlier" in paths:
+            console.print(f"the earlier calibration in {folder} was moved to "
+                          f"{paths['earlier']}", highlight=False)
         if run.convergence is not None and not run.convergence.converged:
             outcome.unconverged.append(f"{scenario.name}: {'; '.join(run.convergence.reasons)}")
     if all_scenarios:

@@ -329,6 +329,15 @@ def pair(config: Config, results: pd.DataFrame, measured: pd.DataFrame, outputs:
         raise BpsflowError(f"calibration.holdout_days: holding out {holdout_days} days leaves no "
                            f"calibration days (evaluated days end {last_day:%m-%d})",
                            source=config.source)
+    counts = rows.loc[rows["split"] == "calibration", "output"].value_counts()
+    # (a re-run of the held-out days, holdout_days 0, is scored, not fitted)
+    few = [o for o in pd.unique(rows["output"]) if counts.get(o, 0) < 2] if holdout_days else []
+    if few:
+        # NMBE and CV(RMSE) divide by n - 1 (seed eq. 1-2): one value fits nothing
+        raise BpsflowError(f"calibration.holdout_days: holding out {holdout_days} days leaves "
+                           f"{', '.join(f'{o}: {counts.get(o, 0)}' for o in few)} {resolution} "
+                           f"calibration value(s); expected at least 2 per output (hold out "
+                           f"fewer days, or use hourly resolution)", source=config.source)
     paired = Paired(rows=rows, observed=observed_all, simulated=simulated_all,
                     instances=np.asarray(instances), resolution=resolution)
     return _drop_idle(config, paired, idle_fraction)

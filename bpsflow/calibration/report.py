@@ -35,6 +35,10 @@ POSTERIOR_FILE = "posterior.parquet"
 HELDOUT_FILE = "heldout.csv"
 OBSERVATIONS_FILE = "observations.parquet"
 EMULATOR_POINTS_FILE = "emulator_points.parquet"
+#: A calibration's own results in its folder, moved aside by the next calibration there
+#: (the design runs stay: they are reused when the design is the same).
+EARLIER_FILES = (CALIBRATION_FILE, POSTERIOR_FILE, HELDOUT_FILE, OBSERVATIONS_FILE,
+                 EMULATOR_POINTS_FILE, "figures", "decision")
 
 _PROBABILITIES = (0.05, 0.5, 0.95)
 
@@ -251,7 +255,17 @@ def write(run: CalibrationRun, out_dir: Path, provenance: dict | None = None) ->
     ``calibration.json`` so that ``bpsflow decide`` can check what it is given.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
+    if (out_dir / CALIBRATION_FILE).is_file():
+        # an earlier calibration's posterior, figures and decisions must not sit beside this
+        # record (a deterministic run over a Bayesian one left its posterior for decide)
+        from bpsflow.simulation.rundir import move_aside
+
+        earlier = move_aside(out_dir, EARLIER_FILES)
+    else:
+        earlier = None
     paths = {"json": out_dir / CALIBRATION_FILE, "heldout": out_dir / HELDOUT_FILE}
+    if earlier is not None:
+        paths["earlier"] = earlier
     record = calibration_record(run)
     record.update(provenance or {})
     write_json(paths["json"], record)

@@ -245,6 +245,15 @@ class CalibrationSettings(_Strict):
 
     @model_validator(mode="after")
     def _check(self) -> CalibrationSettings:
+        for key in ("outputs", "parameters"):
+            listed = getattr(self, key)
+            if listed == []:
+                raise ValueError(f"{key}: the list is empty; name at least one (or leave the "
+                                 f"key out for the default)")
+            repeated = sorted({o for o in listed or [] if listed.count(o) > 1})
+            if repeated:
+                # each observation would count twice and the posterior be too narrow
+                raise ValueError(f"{key}: {', '.join(repeated)} listed more than once")
         names = [s.name for s in self.scenarios]
         if len(set(names)) != len(names):
             repeated = sorted({n for n in names if names.count(n) > 1})

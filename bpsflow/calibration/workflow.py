@@ -27,6 +27,7 @@ import pandas as pd
 from rich.console import Console
 from scipy import special
 
+from bpsflow.alignment import check_coverage
 from bpsflow.calibration import design as design_module
 from bpsflow.calibration.design import Paired
 from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effects, standardise_unit
@@ -116,6 +117,38 @@ def check_scenario(config: Config, scenario: Scenario, where: str,
         if measured is not None and output not in measured.columns:
             raise BpsflowError(f"no column {output}, which {where} calibrates on",
                                source=measured_source)
+    if measured is not None:
+        # every evaluated hour measured: alignment's own error, before the design runs
+        check_coverage(config, measured, measured_source, outputs=list(scenario.outputs))
+
+
+def check_holdout(config: Config, settings: CalibrationSettings, scenario: Scenario) -> None:
+    """Refuse, before any run, a hold-out that leaves an output under 2 calibration values.
+
+    The held-out days are the last evaluated days over every calibrated output's tests
+    (as :func:`bpsflow.calibration.design.pair` splits them).
+    """
+    from bpsflow.alignment import evaluation_hours
+
+    days: dict[str, set] = {}
+    for test in config.model.tests:
+        for output in test.outputs:
+            if output in scenario.outputs:
+                hours = evaluation_hours(test, config.model.year) - pd.Timedelta(hours=1)
+                days.setdefault(output, set()).update(hours.normalize())
+    if not days:
+        return
+    last = max(max(d) for d in days.values())
+    first_heldout = last - pd.Timedelta(days=settings.holdout_days - 1)
+    for output, own in days.items():
+        kept = sorted(d for d in own if d < first_heldout)
+        values = len(kept) if scenario.resolution == "daily" else 24 * len(kept)
+        if values < 2:
+            raise BpsflowError(
+                f"calibration.holdout_days: holding out {settings.holdout_days} day(s) (from "
+                f"{first_heldout:%m-%d}) leaves {output} {values} {scenario.resolution} "
+                f"calibration value(s) of its tests' evaluated days; expected at least 2 (hold "
+                f"out fewer days, or lengthen its tests)", source=config.source)
 
 
 def prepare_design(config: Config, settings: CalibrationSettings, design_dir: Path,
@@ -465,6 +498,15 @@ def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
     values = raw.get("values") if isinstance(raw, dict) else None
     if not isinstance(values, dict):
         raise BpsflowError("expected a mapping 'values: {parameter: value}'", source=path)
+    known = {p.name for p in parameters}
+    unknown = sorted(str(name) for name in values if name not in known)
+    if unknown and len(unknown) == len(values):
+        raise BpsflowError(f"values: none of {', '.join(unknown)} is a parameter of the config "
+                           f"(expected some of {sorted(known)})", source=path)
+    if unknown:
+        # a truth of a more detailed model may hold inputs this one has not: said, not refused
+        console.print(f"[yellow]{path.name}: values {', '.join(unknown)} are no parameters of "
+                      f"the config and are not compared[/yellow]", highlight=False)
     truth = {}
     for parameter in parameters:
         if parameter.name not in values:

@@ -82,7 +82,7 @@ def read_calibration(folder: Path, config: Config) -> Calibrated:
                                             for p in record["parameters"]):
         raise BpsflowError(f"{record_path}: expected the record 'bpsflow calibrate' writes, a "
                            "mapping whose 'parameters' lists the calibrated parameters by name")
-    if not posterior_path.is_file():
+    if record.get("method") not in (None, "bayes") or not posterior_path.is_file():
         raise BpsflowError(f"--calibration: no {POSTERIOR_FILE} in {folder}: a decision needs "
                            f"a Bayesian calibration's posterior (method bayes)")
     wanted = record.get("config", {}).get("fingerprint")

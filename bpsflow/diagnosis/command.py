@@ -74,7 +74,7 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
                           step=step)
         progress.update(task, total=progress.tasks[task].completed)
     # after the work, so that a diagnosis that fails leaves the earlier one where it was
-    earlier = move_aside(out, REPORT_FILES)
+    earlier = move_aside(out, REPORT_FILES) if (out / REPORT_FILES[0]).is_file() else None
     if earlier is not None:
         console.print(f"the earlier diagnosis in {out} was moved to {earlier}", highlight=False)
     paths = write_diagnosis(result, out)

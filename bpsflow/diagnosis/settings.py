@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 #: The extensions implemented on both backends (bpsflow/diagnosis/extensions.py). The
 #: model's stratification is already an input (stratification_gradient,
@@ -147,3 +147,13 @@ class DiagnosisSettings(BaseModel):
     max_fit_iterations: int = Field(default=20, ge=1)
     ensemble_size: int = Field(default=50, ge=2)
     seed: int = 0
+
+    @model_validator(mode="after")
+    def _distinct(self) -> DiagnosisSettings:
+        for key in ("extensions", "parameters", "suspects"):
+            listed = getattr(self, key) or []
+            repeated = sorted({str(v) for v in listed if listed.count(v) > 1})
+            if repeated:
+                # a candidate listed twice competes with itself for the cause
+                raise ValueError(f"{key}: {', '.join(repeated)} listed more than once")
+        return self
