@@ -474,6 +474,9 @@ def test_calibrate_bounds_power_by_its_design_when_the_run_has_no_results(case, 
             parameter["distribution"] = {"type": "constant", "value": float(value(distribution))}
     raw["calibration"] = {"outputs": [HEATING], "resolution": "hourly", "holdout_days": 1,
                           "design": {"runs": 10, "seed": 1}}
+    # two evaluated heating days, so that the hold-out leaves one to calibrate on
+    raw["model"]["tests"][0]["days"] = 3
+    raw["model"]["tests"][1].update(start="12-08", days=1, warmup_days=0)
     (tmp_path / "cfg").mkdir()
     config = write_config(tmp_path / "cfg", raw)
     run_dir = tmp_path / "cfg" / "run"
