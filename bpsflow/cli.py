@@ -471,6 +471,17 @@ def validate(config: Path = ConfigArg,
                            f"directory of another ensemble (e.g. the baseline's) whose "
                            f"predictions are treated as invalid")
     invalid_results = read_results(invalid.resolve()) if invalid else None
+    if invalid_results is not None:
+        # another model's ensemble by design, but it must report this config's tests
+        have = set(zip(invalid_results["test"], invalid_results["output"]))
+        lacking = [f"{t.name}:{o}" for t in cfg.model.tests for o in t.outputs
+                   if (t.name, o) not in have]
+        if lacking:
+            raise BpsflowError(f"--invalid: {invalid} has no results of {', '.join(lacking[:3])}"
+                               + (f" and {len(lacking) - 3} more" if len(lacking) > 3 else "")
+                               + "; expected an ensemble run with this config's tests and "
+                               "outputs (e.g. the baseline's, from a config that extends this "
+                               "one)")
     data = _read_measured(measured, cfg, required=_test_outputs(cfg), reference=results,
                           allow_implausible=allow_implausible)
     observed = data.frame

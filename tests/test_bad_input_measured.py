@@ -647,3 +647,14 @@ def test_comment_lines_above_the_header_are_skipped_and_said(case):
     plain = case.validate(case.write(case.hourly, "plain.csv"))
     assert plain.exit_code == 0
     assert before.keys() == snapshot(case.run_dir).keys()
+
+
+def test_an_invalid_ensemble_of_other_tests_is_named_as_such(case, tmp_path):
+    other = tmp_path / "other_run"
+    other.mkdir()
+    results = pd.read_parquet(case.run_dir / "results.parquet")
+    results.assign(test="elsewhere").to_parquet(other / "results.parquet")
+    before = snapshot(case.run_dir)
+    result = case.validate(case.write(case.hourly), "--invalid", other)
+    assert_clean_error(result, "--invalid", "other_run", "has no results of H-ST:heating_power_w")
+    assert_unchanged(before, case.run_dir)
