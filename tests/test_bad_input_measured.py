@@ -658,3 +658,17 @@ def test_an_invalid_ensemble_of_other_tests_is_named_as_such(case, tmp_path):
     result = case.validate(case.write(case.hourly), "--invalid", other)
     assert_clean_error(result, "--invalid", "other_run", "has no results of H-ST:heating_power_w")
     assert_unchanged(before, case.run_dir)
+
+
+def test_diagnose_takes_gaps_inside_a_test_but_not_data_short_of_its_ends(case):
+    from bpsflow.diagnosis.command import check_span
+    from bpsflow.errors import BpsflowError
+
+    config = load_config(case.config)
+    gappy = case.hourly.copy()
+    gappy.iloc[30:40, gappy.columns.get_loc(HEATING)] = np.nan
+    check_span(config, gappy, HEATING, Path("gappy.csv"))          # gaps between: fine
+    short = case.hourly.copy()
+    short.iloc[-60:, short.columns.get_loc(HEATING)] = np.nan
+    with pytest.raises(BpsflowError, match="the measured data cover"):
+        check_span(config, short, HEATING, Path("short.csv"))

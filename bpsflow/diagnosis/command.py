@@ -29,7 +29,6 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     ``allow_implausible`` accepts values outside their plausible range.
     Returns the :class:`Diagnosis`.
     """
-    from bpsflow.alignment import check_coverage
     from bpsflow.measured import plausibility_reference, read_measured
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.rundir import prepare_run_dir
@@ -55,7 +54,7 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
         console.print(f"[yellow]{note}[/yellow]", highlight=False)
     measured = data.frame
     output = choose_output(config, measured, settings)
-    check_coverage(config, measured, measured_path, outputs=[output])
+    check_span(config, measured, output, measured_path)
     check_varies(config, measured, output, measured_path)
     # base fit, signatures or one fit per candidate extension per round: an estimate the bar extends
     expected = 1 + len(settings.extensions)
@@ -105,6 +104,28 @@ def nominal_reference(config: Config, backend: str) -> pd.DataFrame | None:
     with tempfile.TemporaryDirectory(prefix="bpsflow-reference-") as workdir:
         outcome = simulate_batch(config, samples, Path(workdir), get_backend(backend))
     return None if outcome.failed or not len(outcome.tidy) else outcome.tidy
+
+
+def check_span(config: Config, measured: pd.DataFrame, output: str, source: Path) -> None:
+    """Refuse data that do not reach both ends of every test reporting ``output``.
+
+    Gaps inside a test are allowed (their hours are left out of the fits);
+    data that stop early would move the held-out block (the last days) onto
+    days that are not the test's last.
+    """
+    from bpsflow.alignment import evaluation_hours
+
+    present = measured.index[measured[output].notna().to_numpy()]
+    for test in config.model.tests:
+        if output not in test.outputs:
+            continue
+        hours = evaluation_hours(test, config.model.year)
+        if present.empty or present.min() > hours[0] or present.max() < hours[-1]:
+            covered = f"{present.min()} .. {present.max()}" if len(present) else "no hour"
+            raise BpsflowError(f"column '{output}': test {test.name} is evaluated over "
+                               f"{hours[0]} .. {hours[-1]} (hour-ending) but the measured data "
+                               f"cover {covered}; expected values from its first to its last "
+                               f"evaluated hour (gaps between are allowed)", source=source)
 
 
 def check_varies(config: Config, measured: pd.DataFrame, output: str, source: Path) -> None:
