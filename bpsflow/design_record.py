@@ -270,14 +270,19 @@ def read_simulation_record(run_dir: Path) -> dict[str, Any] | None:
         else None
 
 
-def write_simulation_record(config: Config, run_dir: Path, backend: str) -> Path:
-    """Record what the instances of ``run_dir`` simulate (written when the first ones run)."""
+def write_simulation_record(config: Config, run_dir: Path, backend: str,
+                            inputs: dict[str, Any] | None = None) -> Path:
+    """Record what the instances of ``run_dir`` simulate (written when the first ones run).
+
+    ``inputs``: :func:`simulation_inputs` of ``config`` when the caller has them already.
+    """
     return write_json(Path(run_dir) / SIMULATION_FILE,
-                      {"inputs": simulation_inputs(config), "backend": backend})
+                      {"inputs": inputs or simulation_inputs(config), "backend": backend})
 
 
 def require_same_simulation(config: Config, run_dir: Path, command: str,
-                            backend: str | None = None) -> None:
+                            backend: str | None = None,
+                            inputs: dict[str, Any] | None = None) -> None:
     """Raise when ``run_dir``'s finished instances simulated another model than the config's.
 
     Parameters
@@ -298,7 +303,7 @@ def require_same_simulation(config: Config, run_dir: Path, command: str,
     record = read_simulation_record(run_dir)
     if record is None:
         return
-    changes = changed_keys(record["inputs"], simulation_inputs(config))
+    changes = changed_keys(record["inputs"], inputs or simulation_inputs(config))
     if backend is not None and record.get("backend") not in (None, backend):
         changes.insert(0, f"backend: {record['backend']} -> {backend}")
     if not changes:

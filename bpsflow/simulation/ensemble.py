@@ -44,7 +44,11 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from bpsflow.design_record import require_same_simulation, write_simulation_record
+from bpsflow.design_record import (
+    require_same_simulation,
+    simulation_inputs,
+    write_simulation_record,
+)
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation import rundir
 from bpsflow.simulation.backend import Backend, Batch
@@ -188,10 +192,12 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
     with rundir.RunLock(run_dir):
         records = rundir.manifest_records(run_dir)
         finished = rundir.finished_instances(run_dir, wanted)
+        # hashed once per batch: diagnose runs many batches, each file read once here
+        inputs = simulation_inputs(config)
         if finished or records:
-            require_same_simulation(config, run_dir, "run", backend.name)
+            require_same_simulation(config, run_dir, "run", backend.name, inputs)
         if any(i not in finished for i in wanted):
-            write_simulation_record(config, run_dir, backend.name)
+            write_simulation_record(config, run_dir, backend.name, inputs)
         failed_before = {i for i, r in records.items() if r.status == "failed"} - finished
         todo = [i for i in wanted if i not in finished
                 and (retry_failed or i not in failed_before)]
