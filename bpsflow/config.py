@@ -33,8 +33,6 @@ from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Discriminator,
     Field,
     Tag,
@@ -50,6 +48,7 @@ from bpsflow.errors import BpsflowError
 from bpsflow.files import read_user_text
 from bpsflow.names import NAME_PATTERN, SafeName
 from bpsflow.names import RULE as NAME_RULE
+from bpsflow.schema import StrictModel
 
 _MONTH_DAY = re.compile(r"^(\d{2})-(\d{2})$")
 
@@ -78,9 +77,8 @@ MAX_SEED = 2**32 - 1
 MAX_JOBS = 1024
 
 
-class _Strict(BaseModel):
-    # NaN and infinity are never a meaningful config value; refusing them here names the key.
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class _Strict(StrictModel):
+    pass
 
 
 class IdfTarget(_Strict):

@@ -21,11 +21,12 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
 from bpsflow.config import Config, _format_location, parse_yaml
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_user_text, write_csv, write_json
+from bpsflow.schema import StrictModel
 from bpsflow.simulation.target_bounds import check_sample_values
 
 MEASURED_FILE = "measured.csv"
@@ -36,7 +37,7 @@ SYNTH_FILES = (MEASURED_FILE, TRUTH_FILE, EQUIVALENT_TRUTH_FILE, "detailed.csv",
                "sensor_calibration.csv", "detailed.json")
 
 
-class Noise(BaseModel):
+class Noise(StrictModel):
     """Sensor noise of one output: ``bound`` is 3 standard deviations.
 
     ``autocorrelation`` (in [0, 1), default 0: independent hours) is the lag-1
@@ -54,15 +55,13 @@ class Noise(BaseModel):
     increment; single intervals can read 0 or a whole increment.
     """
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["absolute", "relative"]
     bound: float = Field(ge=0)
     autocorrelation: float = Field(default=0.0, ge=0.0, lt=1.0)
     increment: float | None = Field(default=None, gt=0)
 
 
-class Truth(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class Truth(StrictModel):
     values: dict[str, float] = Field(default_factory=dict)
     noise: dict[str, Noise] = Field(default_factory=dict)
     seed: int = Field(default=0, ge=0, le=2**32 - 1)

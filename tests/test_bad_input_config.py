@@ -271,3 +271,30 @@ def test_a_simulation_change_names_the_innermost_key():
              "outputs.heat": {"key": "Zone", "scale": 1.0}}
     assert changed_keys(before, after) == ["model.tests[0].setpoint_c: 30.0 -> 28.0",
                                            "outputs.heat.key: Cell -> Zone"]
+
+
+@pytest.mark.parametrize("where", ["design.samples", "calibration.bayes.chains",
+                                   "distribution.lower", "truth"])
+def test_true_or_false_for_a_number_is_refused_naming_the_key(tmp_path, where):
+    # pydantic's lax mode reads true as 1 and false as 0.0: a YAML yes/on would pass as a number
+    raw = _surrogate_raw()
+    truth_args: list = []
+    if where == "design.samples":
+        raw["design"]["samples"] = True
+        expected = ["design: samples", "whole number"]
+    elif where == "calibration.bayes.chains":
+        raw["calibration"] = {"bayes": {"chains": True}}
+        expected = ["calibration", "chains", "whole number"]
+    elif where == "distribution.lower":
+        first = next(p for p in raw["parameters"] if p["distribution"]["type"] == "uniform")
+        first["distribution"]["lower"] = False
+        expected = ["distribution", "lower", "a number"]
+    else:
+        name = raw["parameters"][0]["name"]
+        truth = tmp_path / "truth.yaml"
+        truth.write_text(yaml.safe_dump({"values": {name: True}}))
+        truth_args = ["--truth", truth]
+        expected = [str(truth), "values", "a mapping to a number"]
+    config = write_config(tmp_path, raw)
+    command = ("synth", config, *truth_args) if truth_args else ("check", config, "--no-run")
+    assert_clean_error(invoke(*command), *expected, "true/false")

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from bpsflow.names import SafeName
+from bpsflow.schema import StrictModel
 
 Resolution = Literal["daily", "hourly"]
 
@@ -58,8 +59,8 @@ DEFAULT_VARIABLE_INPUTS: dict[str, list[str]] = {
 }
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _Strict(StrictModel):
+    pass
 
 
 class CalibrationDesign(_Strict):

@@ -38,14 +38,15 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from bpsflow.config import Config, IdfTarget, SafeName
 from bpsflow.errors import BpsflowError
+from bpsflow.schema import StrictModel
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class _Strict(StrictModel):
+    pass
 
 
 def _exactly_one(model: BaseModel, names: tuple[str, ...], message: str) -> None:

@@ -34,7 +34,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from bpsflow.schema import StrictModel
 
 #: The extensions implemented on both backends (bpsflow/diagnosis/extensions.py). The
 #: model's stratification is already an input (stratification_gradient,
@@ -50,7 +52,7 @@ ALL_EXTENSIONS: list[ExtensionName] = ["infiltration", "internal_gain_schedule",
                                        "solar_aperture", "thermal_mass"]
 
 
-class DiagnosisSettings(BaseModel):
+class DiagnosisSettings(StrictModel):
     """Settings of ``bpsflow diagnose``.
 
     ``parameters`` are the existing parameters calibrated before the
@@ -116,8 +118,6 @@ class DiagnosisSettings(BaseModel):
     model whose out-of-fold error is over 3 times its calibration error) is
     redone by simulation.
     """
-
-    model_config = ConfigDict(extra="forbid")
 
     output: str | None = None
     holdout_days: int = Field(default=7, ge=1)
