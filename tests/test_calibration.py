@@ -429,12 +429,16 @@ def test_deterministic_on_the_simulator_agrees_with_the_emulator(tmp_path):
     for model in ("emulator", "simulator"):
         raw = yaml.safe_load(config.read_text())
         raw["calibration"]["deterministic"].update(model=model, starts=1)
+        if model == "simulator":       # more fit points than the runs hold: said, not silent
+            raw["calibration"]["emulator"]["points"] = 100_000
         path = tmp_path / f"{model}.yaml"
         path.write_text(yaml.safe_dump(raw))
         result = CliRunner().invoke(app, ["calibrate", str(path), "--measured", str(measured),
                                           "--method", "deterministic", "--out",
                                           str(tmp_path / model), "--no-progress"])
         assert result.exit_code == 0, result.output
+        said = "note: calibration.emulator.points is 100000, but the training runs hold only"
+        assert (said in " ".join(result.output.split())) == (model == "simulator")
         record = json.loads((tmp_path / model / "calibration.json").read_text())
         out[model] = {p["name"]: p["deterministic"] for p in record["parameters"]}
     # the emulator reproduces the simulator, so both optima agree

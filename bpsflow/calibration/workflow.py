@@ -205,6 +205,10 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
                             test_fraction=em.test_fraction, restarts=em.restarts,
                             random_state=em.seed)
     timings["emulator_seconds"] = time.perf_counter() - started
+    if len(emulator.fit_points) < em.points:
+        console.print(f"[{scenario.name}] note: calibration.emulator.points is {em.points}, "
+                      f"but the training runs hold only {len(emulator.fit_points)} (run, "
+                      f"{scenario.resolution} row) pairs; the emulator is fitted on all of them")
     if emulator.test is not None:
         console.print(f"[{scenario.name}] emulator: hold-out R² {emulator.test.r2:.4f} "
                       f"({len(emulator.test.test_runs)} runs), MLE fit "
