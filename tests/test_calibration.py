@@ -34,6 +34,7 @@ from bpsflow.calibration.emulator import (
 )
 from bpsflow.calibration.settings import BayesSettings, DeterministicSettings, LogNormalPrior
 from bpsflow.cli import app
+from bpsflow.errors import BpsflowError
 from bpsflow.sampling import latin_hypercube_unit
 
 from conftest import i600_raw, write_config
@@ -779,3 +780,31 @@ def test_a_calibration_into_the_folder_of_another_moves_that_one_aside(tmp_path)
     earlier = list((out / "previous").glob("*"))
     assert len(earlier) == 1 and (earlier[0] / "calibration.json").is_file()
     assert (earlier[0] / "figures").is_dir() and (out / "calibration.json").is_file()
+
+
+@pytest.mark.slow
+def test_a_failed_scenario_leaves_a_comparison_of_the_finished_ones(tmp_path, monkeypatch):
+    from bpsflow.calibration import workflow
+
+    config, measured, _ = _short_calibration_config(tmp_path, scenarios=True)
+    out = tmp_path / "run" / "calibration"
+    (out).mkdir(parents=True)
+    stale = "scenario,outputs\nOLD,heating_power_w\n"
+    (out / "scenarios.csv").write_text(stale)
+    real = workflow.calibrate_scenario
+
+    def second_fails(config, settings, scenario, *args, **kwargs):
+        if scenario.name == "D-ET":
+            raise BpsflowError("calibration.scenarios (D-ET): made to fail")
+        return real(config, settings, scenario, *args, **kwargs)
+
+    monkeypatch.setattr(workflow, "calibrate_scenario", second_fails)
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--scenarios", "--method", "deterministic",
+                                      "--no-progress"])
+    assert result.exit_code != 0
+    said = " ".join(result.output.split())
+    assert "scenario D-ET failed" in said and "compares only the scenarios calibrated now (D-E)" \
+        in said and "D-ET were not calibrated again" in said, said
+    table = pd.read_csv(out / "scenarios.csv")
+    assert list(table["scenario"]) == ["D-E"]

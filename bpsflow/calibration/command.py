@@ -139,9 +139,15 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
                              "fingerprint": config_fingerprint(config)}}
     for scenario, _ in scenarios:
         folder = out / SCENARIOS_DIR / scenario.name if all_scenarios else out
-        run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
-                                          measured_path, method, folder, jobs, truth,
-                                          show_progress)
+        try:
+            run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
+                                              measured_path, method, folder, jobs, truth,
+                                              show_progress)
+        except (Exception, KeyboardInterrupt):
+            if all_scenarios and outcome.runs:
+                _compare_finished(outcome, [s for s, _ in scenarios], scenario.name, out,
+                                  console)
+            raise
         paths = write(run, folder, provenance=provenance)
         outcome.runs.append(run)
         outcome.paths[scenario.name] = paths
@@ -160,6 +166,25 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
         print_comparison(outcome.runs, console)
         console.print(f"wrote {paths['csv']}, {paths['json']}, {paths['figure']}")
     return outcome
+
+
+def _compare_finished(outcome: Outcome, scenarios: list, failed: str, out: Path,
+                      console: Console) -> None:
+    """On a scenario's failure, the comparison holds the scenarios this command finished.
+
+    An earlier comparison would otherwise sit beside scenario folders this command
+    has already replaced; the scenarios after the failed one keep whatever an earlier
+    run left in their folders, and the message says so.
+    """
+    from bpsflow.calibration.scenarios import write_comparison
+
+    finished = [run.scenario.name for run in outcome.runs]
+    rest = [s.name for s in scenarios if s.name not in finished]
+    paths = write_comparison(outcome.runs, out)
+    console.print(f"[yellow]scenario {failed} failed: {paths['csv']} compares only the "
+                  f"scenarios calibrated now ({', '.join(finished)}); {', '.join(rest)} were "
+                  f"not calibrated again (their folders under {out / SCENARIOS_DIR} hold "
+                  "an earlier run's results, if any)[/yellow]", highlight=False)
 
 
 def print_run(run, console: Console) -> None:
