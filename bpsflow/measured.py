@@ -96,7 +96,10 @@ _NON_FINITE = re.compile(r"^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
 _THOUSANDS = re.compile(r"^[+-]?\d{1,3}(,\d{3})+\.\d*$|^[+-]?\d{1,3}(,\d{3}){2,}$")
 _AMBIGUOUS_COMMA = re.compile(r"^[+-]?\d{1,3},\d{3}$")
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+$")
-_OFFSET = re.compile(r"\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?\s*(Z|[+-]\d{2}:?\d{2})$")
+#: A time of day, then a zone designator: ``Z``/``z``, ``UTC``/``GMT``, or ``±hh``, ``±hhmm``,
+#: ``±hh:mm`` (ISO 8601 allows hours alone). Group 1 is the stamp, group 2 the designator.
+_OFFSET = re.compile(r"^(.*[T ]\d{2}(?::?\d{2}){0,2}(?:[.,]\d+)?)\s*"
+                     r"(Z|z|UTC|GMT|[+-]\d{2}(?::?\d{2})?)$")
 
 
 @dataclass(frozen=True)
@@ -362,7 +365,8 @@ def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Pat
                   notes: list[str]) -> pd.DatetimeIndex:
     """Naive timestamps in the model's local standard time (UTC offsets converted)."""
     series = pd.Series(texts, dtype=object).str.strip()
-    offsets = series.str.extract(_OFFSET, expand=False)
+    parts = series.str.extract(_OFFSET)
+    offsets = parts[1].map(_iso_offset, na_action="ignore")
     aware = offsets.notna().to_numpy()
     if aware.any() and not aware.all():
         first = int(np.flatnonzero(~aware if aware[0] else aware)[0])
@@ -370,6 +374,10 @@ def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Pat
                            f"'{texts[first]}' {'has no' if aware[0] else 'has a'} UTC offset "
                            f"but line {lines[0]} {'has one' if aware[0] else 'does not'}; "
                            f"expected one convention for every stamp", source=path)
+    if aware.any():
+        # one spelling of every designator (hours alone, UTC, lower-case z), so that the
+        # parser applies each offset rather than reading a stamp it does not know as UTC
+        series = parts[0] + offsets
     parsed = pd.to_datetime(series, format="ISO8601", errors="coerce", utc=True)
     if not aware.any():
         parsed = parsed.dt.tz_localize(None)
@@ -377,9 +385,12 @@ def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Pat
             parsed = _parse_local_format(series, lines, path, notes)
     bad = np.flatnonzero(parsed.isna().to_numpy())
     if len(bad):
+        zone_name = (" (time-zone names are not read: write a UTC offset such as -08:00, or "
+                     "the model's local standard time without one)"
+                     if re.search(r"\d\s*[A-Za-z]{2,5}$", texts[bad[0]].strip()) else "")
         raise BpsflowError(f"column '{TIMESTAMP_COLUMN}', line {lines[bad[0]]}: "
                            f"'{texts[bad[0]]}' is not a date and time (expected e.g. "
-                           f"2025-12-05 01:00:00, hour-ending)", source=path)
+                           f"2025-12-05 01:00:00, hour-ending){zone_name}", source=path)
     if not aware.any():
         return pd.DatetimeIndex(parsed)
     hours = model_utc_offset(config, path)
@@ -391,6 +402,14 @@ def _parse_stamps(texts: list[str], lines: np.ndarray, config: Config, path: Pat
                  f"model's local standard time (UTC{_format_offset(hours)}, the weather "
                  f"file's time zone){dst}")
     return pd.DatetimeIndex(local)
+
+
+def _iso_offset(designator: str) -> str:
+    """``±hh:mm`` for a zone designator (``Z``, ``z``, ``UTC``, ``GMT``, ``±hh``, ``±hhmm``)."""
+    if designator.upper() in ("Z", "UTC", "GMT"):
+        return "+00:00"
+    digits = designator[1:].replace(":", "")
+    return f"{designator[0]}{digits[:2]}:{digits[2:] or '00'}"
 
 
 def _parse_local_format(series: pd.Series, lines: np.ndarray, path: Path,
@@ -497,6 +516,18 @@ def _parse_values(texts: list[str], lines: np.ndarray, column: str, path: Path,
                            source=path)
     values = np.full(len(cells), np.nan)
     values[number] = cells[number].astype(float).to_numpy()
+    overflow = np.flatnonzero(np.isinf(values))
+    if len(overflow):
+        # 1e309 is written as a number but is beyond any float: it reads as infinity
+        text = texts[overflow[0]].strip()
+        if not strict:
+            notes.append(f"{path.name}: column '{column}' is not an output and holds a number "
+                         f"beyond the float range (line {lines[overflow[0]]}: '{text}'); "
+                         "left out")
+            return None
+        raise BpsflowError(f"column '{column}', line {lines[overflow[0]]}: '{text}' is beyond "
+                           "the range of a number (about ±1.8e308); expected a finite value",
+                           source=path)
     if thousands.any():
         values[thousands] = cells[thousands].str.replace(",", "").astype(float).to_numpy()
         first = int(np.flatnonzero(thousands)[0])

@@ -245,6 +245,42 @@ def test_utc_offsets_are_converted_to_the_models_standard_time(case):
     _assert_same_metrics(expected, _metrics(case))
 
 
+@pytest.mark.parametrize("spelling", ["-08", "-0800", " -08:00", "+01", "z", " UTC", " GMT",
+                                      "compact"])
+def test_every_iso_zone_designator_is_applied(case, spelling):
+    """Hours-only offsets, lower-case z and UTC/GMT were read as UTC wall-clock time (no note)."""
+    assert_ok(case.validate(case.write(case.hourly, "local.csv")))
+    expected = _metrics(case)
+    shifted = case.hourly.copy()
+    hours = {"-08": 0, "-0800": 0, " -08:00": 0, "+01": 9}.get(spelling, 8)
+    clock = shifted.index + pd.Timedelta(hours=hours)
+    if spelling == "compact":
+        shifted.index = clock.strftime("%Y%m%dT%H%M%SZ")
+    else:
+        shifted.index = [f"{t:%Y-%m-%dT%H:%M:%S}{spelling}" for t in clock]
+    text = assert_ok(case.validate(case.write(shifted, "zoned.csv")))
+    assert "converted to the model's local standard time (UTC-08:00" in " ".join(text.split())
+    _assert_same_metrics(expected, _metrics(case))
+
+
+def test_a_time_zone_name_is_refused_with_the_way_out(case):
+    lines = case.csv_lines()
+    lines[1:] = [line.replace(",", " PST,", 1) for line in lines[1:]]
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 2",
+                          "time-zone names are not read", "UTC offset")
+
+
+def test_a_number_beyond_the_float_range_is_refused(case):
+    lines = case.csv_lines()
+    header = lines[0].split(",")
+    column = header.index(HEATING)
+    cells = lines[6].split(",")
+    cells[column] = "1e309"
+    lines[6] = ",".join(cells)
+    _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 7", HEATING,
+                          "'1e309' is beyond the range")
+
+
 def test_mixing_stamps_with_and_without_offset_is_an_error(case):
     lines = case.csv_lines()
     stamp, rest = lines[7].split(",", 1)
