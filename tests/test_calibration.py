@@ -383,6 +383,12 @@ def test_decide_takes_the_physical_checks_runs_of_the_held_out_week(tmp_path):
     assert "its runs are used" not in simulated["output"]
     assert (decision / "runs_as_is" / "results.parquet").is_file()
     assert simulated["decision"]["rules"] == reused["decision"]["rules"]
+    # the measured file is recorded, and the earlier decision is moved aside, not overwritten
+    assert simulated["decision"]["measured"] == str(measured.resolve())
+    assert len(list((decision / "previous").glob("*/decision.json"))) == 1
+    assert "the earlier decision" in " ".join(simulated["output"].split())
+    assert "parameter south_wall_insulation_conductivity:" in " ".join(
+        simulated["output"].split())
     assert "its runs are used" not in decide("11-14")["output"]
 
 

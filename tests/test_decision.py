@@ -118,9 +118,48 @@ def test_unknown_output_and_key(tmp_path, hydronic):
 
 
 def test_overlay_with_unknown_config_key(tmp_path, hydronic):
-    message = _bad(tmp_path, lambda t: t.replace("change:\n", "change:\n  overlay: {design: {sample: 3}}\n"),
+    message = _bad(tmp_path, lambda t: t.replace("change:\n", "change:\n  overlay: {model: {idff: x.idf}}\n"),
                    hydronic)
-    assert "change.overlay" in message and "sample" in message and "unknown key" in message
+    assert "change.overlay" in message and "idff" in message and "unknown key" in message
+
+
+@pytest.mark.parametrize("overlay, key", [("{model: {timesteps_per_hour: 4}}",
+                                            "change.overlay.model.timesteps_per_hour"),
+                                           ("{design: {samples: 5}}", "change.overlay.design"),
+                                           ("{execution: {jobs: 1}}", "change.overlay.execution")])
+def test_an_overlay_of_how_the_model_is_simulated_is_refused(tmp_path, hydronic, overlay, key):
+    """A time step halved once read as a 2 % heating saving ('implement')."""
+    message = _bad(tmp_path, lambda t: t.replace("change:\n", f"change:\n  overlay: {overlay}\n"),
+                   hydronic)
+    assert key in message and "changes the building" in message
+
+
+def test_an_intervention_that_changes_nothing_is_refused(tmp_path, hydronic):
+    """multiply 1.0 once got an underperformance probability of 0.38 from rounding alone."""
+    same = _bad(tmp_path, lambda t: t.replace("add: -5\n    minimum: 25", "add: 0", 1)
+                .replace("add: -5\n    minimum: 25", "multiply: 1.0", 1), hydronic)
+    assert "changes nothing" in same and "bad.yaml" in same
+    overlay = _bad(tmp_path, lambda t: t.split("change:\n")[0] + "change:\n  overlay:\n"
+                   "    parameters:\n    - " + _parameter_text(hydronic, "leakage_area") + "\n"
+                   "week:" + t.split("week:", 1)[1], hydronic)
+    assert "change.overlay" in overlay and "changes nothing" in overlay
+
+
+def _parameter_text(config, name: str) -> str:
+    import json
+
+    return json.dumps(config.parameter(name).model_dump(mode="json", exclude_none=True))
+
+
+def test_a_fixed_discomfort_setpoint_must_be_a_room_temperature(hydronic):
+    from bpsflow.decision.workflow import _setpoints
+
+    samples = pd.DataFrame({"setpoint_meeting_room": [0.5]})
+    for value in (-300.0, 50.0):
+        outcome = Outcome(name="d", output="meeting_room_air_temperature_c",
+                          statistic="discomfort", setpoint=Setpoint(value_c=value))
+        with pytest.raises(BpsflowError, match=r"setpoint.value_c: .* not a room temperature"):
+            _setpoints(outcome, hydronic, samples)
 
 
 def test_edit_of_unknown_field(tmp_path, hydronic):

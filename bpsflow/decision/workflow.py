@@ -49,6 +49,7 @@ from bpsflow.files import read_parquet
 
 DECISION_DIR = "decision"
 DECISION_FILE = "decision.json"
+DECISION_FIGURE = "decision_risk.png"
 #: Plausible room heating setpoints, °C: a setpoint parameter outside gives no comfort bound.
 SETPOINT_RANGE_C = (5.0, 35.0)
 
@@ -128,11 +129,13 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
     from bpsflow.distributions import Constant
     from bpsflow.simulation.target_bounds import check_value, targeted_fields
 
+    _check_overlay_keys(intervention.change.overlay, source)
     changed = with_overlay(config, intervention.change.overlay, source,
                            where="change.overlay") if intervention.change.overlay else \
         config.model_copy(deep=True)
     _check_overlaid_parameters(config, changed, source)
     added: dict[str, float] = {}
+    moved = False                     # whether any edit changes a field's value
     for i, edit in enumerate(intervention.change.edits):
         probe = changed.model_copy(deep=True)
         probe.parameters = [Parameter(name="intervention_probe", mode="absolute",
@@ -163,6 +166,11 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                 value = max(value, edit.minimum)
             if edit.maximum is not None:
                 value = min(value, edit.maximum)
+            moved = moved or value != found.nominal
+            if value == found.nominal and len(fields) == 1:
+                raise BpsflowError(f"change.edits[{i}]: sets {found.obj.where} "
+                                   f"{edit.target.field} to {value:g}, the value it has; the "
+                                   "edit changes nothing", source=source)
             problem = check_value(found.limits, value)
             if problem:
                 raise BpsflowError(f"change.edits[{i}]: sets {found.obj.where} "
@@ -177,7 +185,68 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                                    field=edit.target.field)],
                 description=f"{found.obj.where}: {edit.target.field} {found.nominal:g} -> {value:g}"))
             added[name] = float(value)
+    if not moved and not _overlay_changes(config, changed):
+        what = ("change.overlay: it gives every parameter and model file the definition it "
+                "has" if not intervention.change.edits else
+                "change: every edit sets its fields to the values they have"
+                + (" and the overlay gives every parameter and model file the definition it has"
+                   if intervention.change.overlay else ""))
+        raise BpsflowError(f"{what}; the intervention changes nothing", source=source)
     return changed, added
+
+
+#: What an intervention's overlay may change: the building, not how it is simulated or judged.
+OVERLAY_KEYS = {"parameters": None, "model": {"idf", "idf_objects"}}
+
+
+def _check_overlay_keys(overlay: dict, source: Path) -> None:
+    """Refuse an overlay of simulation or analysis settings (time step, periods, design ...).
+
+    The decision compares the model as it is with the model changed; a changed
+    time step or test period would be read as the intervention's effect.
+    """
+    from bpsflow.config import Model
+
+    # an unknown key is the config schema's to name (with_overlay): only known settings here
+    for key, value in overlay.items():
+        if key not in OVERLAY_KEYS and key in Config.model_fields:
+            raise BpsflowError(
+                f"change.overlay.{key}: an intervention changes the building (parameters, "
+                f"model.idf, model.idf_objects); '{key}' is how the model is simulated or "
+                "judged, and its change would be read as the intervention's effect",
+                source=source)
+        allowed = OVERLAY_KEYS[key]
+        if allowed is not None and isinstance(value, dict):
+            for inner in value:
+                if inner not in allowed and inner in Model.model_fields:
+                    raise BpsflowError(
+                        f"change.overlay.{key}.{inner}: an intervention changes the building "
+                        f"(parameters, model.idf, model.idf_objects); {key}.{inner} is how the "
+                        "model is simulated, and its change would be read as the "
+                        "intervention's effect", source=source)
+
+
+def _overlay_changes(config: Config, changed: Config) -> list[str]:
+    """What the overlay changes, described (parameters and model files)."""
+    said = []
+    for parameter in overlaid_parameters(config, changed):
+        before = config.parameter(parameter.name)
+        said.append(f"parameter {parameter.name}: {_distribution_text(before)} -> "
+                    f"{_distribution_text(parameter)}")
+    if changed.model.idf != config.model.idf:
+        said.append(f"model.idf: {config.model.idf} -> {changed.model.idf}")
+    if changed.model.idf_objects != config.model.idf_objects:
+        said.append("model.idf_objects: " + ", ".join(map(str, config.model.idf_objects or
+                                                         ["none"])) + " -> " +
+                    ", ".join(map(str, changed.model.idf_objects or ["none"])))
+    return said
+
+
+def _distribution_text(parameter: Parameter) -> str:
+    distribution = parameter.distribution
+    if distribution.type == "constant":
+        return f"{distribution.nominal:g}"
+    return f"{distribution.type} (median {distribution.nominal:g})"
 
 
 def overlaid_parameters(config: Config, changed: Config) -> list[Parameter]:
@@ -246,7 +315,12 @@ def _setpoints(outcome, config: Config, samples: pd.DataFrame,
     if outcome.setpoint is None:
         return None
     if outcome.setpoint.value_c is not None:
-        return np.full(len(samples), outcome.setpoint.value_c)
+        value = outcome.setpoint.value_c
+        if not SETPOINT_RANGE_C[0] <= value <= SETPOINT_RANGE_C[1]:
+            raise BpsflowError(f"outcomes ({outcome.name}).setpoint.value_c: {value:g} °C is not "
+                               f"a room temperature setpoint (expected {SETPOINT_RANGE_C[0]:g}-"
+                               f"{SETPOINT_RANGE_C[1]:g} °C)", source=source)
+        return np.full(len(samples), value)
     parameter = config.parameter(outcome.setpoint.parameter)
     fields = [f for f in targeted_fields(config) if any(p is parameter for p in f.parameters)
               and f.nominal is not None]
@@ -270,8 +344,12 @@ def _setpoints(outcome, config: Config, samples: pd.DataFrame,
 def decide_one(config: Config, calibrated: Calibrated, intervention: Intervention,
                changed: Config, measured: pd.DataFrame, out_dir: Path, *, backend: str,
                jobs: int | None, show_progress: bool, console: Console,
-               source: Path | None = None) -> dict:
-    """Decision risk of the intervention for one calibration; writes ``decision.json`` and a figure."""
+               source: Path | None = None, provenance: dict | None = None) -> dict:
+    """Decision risk of the intervention for one calibration; writes ``decision.json`` and a figure.
+
+    ``provenance`` (the measured file and its read notes) goes into ``decision.json``;
+    an earlier decision in ``out_dir`` moves to ``out_dir/previous/<timestamp>/``.
+    """
     from bpsflow.calibration.design import run_samples
     from bpsflow.calibration.workflow import checked_runs
     from bpsflow.decision.report import plot_risks
@@ -307,6 +385,13 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
                               backend=backend, jobs=jobs, show_progress=show_progress)
     predicted_as_is = {o: _week_series(as_is, o, hour_ends) for o in outputs}
     predicted_change = {o: _week_series(with_change, o, hour_ends) for o in outputs}
+    if all(np.allclose(predicted_change[o], predicted_as_is[o], rtol=1e-9,
+                       atol=1e-9 * (1.0 + float(np.nanmax(np.abs(predicted_as_is[o])))))
+           for o in outputs):
+        # a decision would then rest on rounding in the permuted errors' sums
+        raise BpsflowError(f"change: the intervention leaves {', '.join(outputs)} as they are "
+                           f"in every draw over the test week (runs kept in {out_dir}); it "
+                           "changes nothing the outcomes measure", source=source)
     rng = np.random.default_rng(sampling.seed)
     draws, perms = len(samples), sampling.permutations
     projected = {o.name: np.empty((draws, perms)) for o in intervention.outcomes}
@@ -358,10 +443,17 @@ def decide_one(config: Config, calibrated: Calibrated, intervention: Interventio
             "business_as_usual": _summary(reference[o.name][:, 0]),
             "intervention": _summary(projected[o.name].ravel())} for o in intervention.outcomes},
         "rules": rules,
+        **(provenance or {}),
     }
     out_dir.mkdir(parents=True, exist_ok=True)
+    from bpsflow.simulation.rundir import move_aside
+
+    earlier = move_aside(out_dir, (DECISION_FILE, DECISION_FIGURE))
+    if earlier is not None:
+        console.print(f"{_tag(calibrated)} the earlier decision in {out_dir} was moved to "
+                      f"{earlier}", highlight=False)
     write_json(out_dir / DECISION_FILE, record)
-    record["figure"] = str(plot_risks(record, out_dir / "decision_risk.png"))
+    record["figure"] = str(plot_risks(record, out_dir / DECISION_FIGURE))
     return record
 
 
@@ -440,6 +532,9 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
     changed, added = intervention_config(config, intervention, Path(intervention_path))
     for name in added:
         console.print(f"intervention: {changed.parameter(name).description}")
+    for line in _overlay_changes(config, changed):
+        console.print(f"intervention: {line}", highlight=False)
+
     calibration = Path(calibration)
     folders = ([p for p in sorted((calibration / SCENARIOS_DIR).iterdir()) if p.is_dir()]
                if scenarios and (calibration / SCENARIOS_DIR).is_dir() else [calibration])
@@ -476,7 +571,9 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
         out_dir = calibrated.folder / DECISION_DIR / intervention.name
         records.append(decide_one(week, calibrated, intervention, changed_week, data.frame, out_dir,
                                   backend=backend, jobs=jobs, show_progress=show_progress,
-                                  console=console, source=Path(intervention_path)))
+                                  console=console, source=Path(intervention_path),
+                                  provenance={"measured": str(Path(path).resolve()),
+                                              "measured_notes": list(data.notes)}))
         for rule in records[-1]["rules"]:
             console.print(f"{_tag(calibrated)} {rule['name']}: p = "
                           f"{rule['underperformance_probability']:.3f}, "
