@@ -696,6 +696,8 @@ def _unit_mistake(value: float, low: float, high: float, unit: str) -> str:
         return "; °F in a °C column?"
     if key == "K" and low <= value + 273.15 <= high:
         return "; °C in a kelvin column?"
+    if value < 0 and low <= -value <= high and key not in ("C", "°C", "DEGC", "K"):
+        return "; a reversed sign (heat or energy written as negative)?"
     candidates = [(1000.0, "×1000: milli-units (mK, mW) or a missing decimal point"),
                   (1e6, "×10⁶: a unit prefix mistake"),
                   (100.0, "×100: a missing decimal point")]

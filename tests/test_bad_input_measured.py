@@ -617,7 +617,7 @@ def test_reversed_sign_of_a_never_negative_output_is_refused(case):
     reversed_sign = case.hourly.copy()
     reversed_sign[HEATING] = -reversed_sign[HEATING]
     _assert_fails_cleanly(case, case.write(reversed_sign, "negative.csv"), f"column '{HEATING}'",
-                          "the simulations are never negative")
+                          "the simulations are never negative", "a reversed sign")
     _assert_fails_cleanly(case, case.write(reversed_sign, "negative.csv"),
                           "the simulations are never negative", command="diagnose",
                           extra=("--no-progress",))
