@@ -814,3 +814,25 @@ def test_a_failed_scenario_leaves_a_comparison_of_the_finished_ones(tmp_path, mo
         in said and "D-ET were not calibrated again" in said, said
     table = pd.read_csv(out / "scenarios.csv")
     assert list(table["scenario"]) == ["D-E"]
+
+
+@pytest.mark.slow
+def test_a_deterministic_optimum_at_its_priors_end_is_said(tmp_path):
+    """The truth (0.9) lies below this prior (0.97-1.0): the optimum can only sit at its end."""
+    config, measured, _ = _short_calibration_config(tmp_path)
+    raw = yaml.safe_load(config.read_text())
+    glazing = next(p for p in raw["parameters"] if p["name"] == "glazing_dirt_correction")
+    glazing["distribution"] = {"type": "uniform", "lower": 0.97, "upper": 1.0}
+    narrow = tmp_path / "narrow.yaml"
+    narrow.write_text(yaml.safe_dump(raw))
+    result = CliRunner().invoke(app, ["calibrate", str(narrow), "--measured", str(measured),
+                                      "--method", "deterministic", "--out",
+                                      str(tmp_path / "det"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())
+    assert "deterministic optimum sits at its prior's end for glazing_dirt_correction (lower " \
+        "end)" in said, said
+    record = json.loads((tmp_path / "det" / "calibration.json").read_text())
+    at_bound = {p["name"]: p["deterministic_at_bound"] for p in record["parameters"]}
+    # (the other input may be pushed to an end as well, compensating: not asserted)
+    assert at_bound["glazing_dirt_correction"] == "lower"

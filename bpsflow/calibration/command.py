@@ -209,6 +209,14 @@ def print_run(run, console: Console) -> None:
                       f"{entry['deterministic']:.3g}",
                       "-" if truth is None else f"{truth:.3g}{mark}")
     console.print(table)
+    bounded = [f"{e['name']} ({e['deterministic_at_bound']} end)"
+               for e in parameter_table(run) if e["deterministic_at_bound"]]
+    if bounded:
+        console.print(f"[yellow]note: the deterministic optimum sits at its prior's end for "
+                      f"{', '.join(bounded)} (within its outer 1 %): the data pull it beyond "
+                      "the prior range, or it compensates another input or a model error; "
+                      "widen the prior or look for the cause before trusting it[/yellow]",
+                      highlight=False)
     held = Table(title=f"{run.scenario.name}: held-out accuracy (last days, never calibrated on)")
     for column in ("model", "output", "resolution", "CV(RMSE) / RMSE", "NMBE / MBE",
                    "nMCRPS / MCRPS", "G14"):

@@ -49,6 +49,19 @@ def _summary(values: np.ndarray) -> dict[str, float]:
             "median": float(q50), "q95": float(q95), "width90": float(q95 - q05)}
 
 
+#: Prior-CDF distance from 0 or 1 within which a deterministic optimum sits at its bound.
+AT_BOUND_QUANTILE = 0.01
+
+
+def _at_bound(unit: float) -> str | None:
+    """``"lower"``/``"upper"`` when an optimum lies in its prior's outer 1 %, else None."""
+    if unit <= AT_BOUND_QUANTILE:
+        return "lower"
+    if unit >= 1.0 - AT_BOUND_QUANTILE:
+        return "upper"
+    return None
+
+
 def parameter_table(run: CalibrationRun) -> list[dict]:
     """Per calibration parameter: prior and posterior summaries, contraction, optimum, truth.
 
@@ -68,7 +81,8 @@ def parameter_table(run: CalibrationRun) -> list[dict]:
                  "sampled": bool(j in set(run.active.tolist())),
                  "emulator_effect": float(run.effects[j]),
                  "emulator_lengthscale": float(run.emulator.hyper.t_lengthscales[j]),
-                 "deterministic": float(optimum[j])}
+                 "deterministic": float(optimum[j]),
+                 "deterministic_at_bound": _at_bound(float(run.deterministic.unit[j]))}
         if draws is not None:
             post = _summary(draws[:, j])
             entry["posterior"] = post
