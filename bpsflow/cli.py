@@ -276,6 +276,11 @@ def check(config: Path = ConfigArg,
     _set_backend(cfg, backend)
     chosen = choose_backend(cfg, err_console.print)
     report = chosen.check(cfg)
+    if cfg.diagnosis is not None:
+        # what diagnose would refuse before reading data: output, parameters, zones
+        from bpsflow.diagnosis.workflow import check_settings as check_diagnosis_settings
+
+        check_diagnosis_settings(cfg, cfg.diagnosis)
     report.notes.extend(inert_targets(cfg))
     if report.controlled_zones:
         from bpsflow.simulation.idf import model_objects
@@ -516,6 +521,14 @@ def validate(config: Path = ConfigArg,
                   "-" if temperature else row["guideline14_hourly"]]
         table.add_row(*cells)
     console.print(table)
+    console.print(f"threshold: the {cfg.validation.q:g}-quantile of the instances' own scores "
+                  "(nMAE; MAE for temperatures) against the measurements. A prediction is "
+                  "accepted as valid when its score is at most the threshold (a valid one is "
+                  f"rejected with probability {1 - cfg.validation.q:.0%})"
+                  + (". " if invalid else "; --invalid RUN_DIR scores known-invalid "
+                     "predictions against it (type II risk). ")
+                  + "nMCRPS scores the ensemble as a whole and is not compared with it.",
+                  highlight=False)
     for v in validations:
         if v.row["notes"]:
             console.print(f"[yellow]{v.row['test']}: {v.row['notes']}[/yellow]")

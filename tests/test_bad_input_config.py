@@ -298,3 +298,16 @@ def test_true_or_false_for_a_number_is_refused_naming_the_key(tmp_path, where):
     config = write_config(tmp_path, raw)
     command = ("synth", config, *truth_args) if truth_args else ("check", config, "--no-run")
     assert_clean_error(invoke(*command), *expected, "true/false")
+
+
+@pytest.mark.parametrize("section, expected", [
+    ({"zone": "NoSuchZone"}, "diagnosis.zone: 'NoSuchZone' is not a Zone of the model"),
+    ({"extension_zones": {"internal_gain_schedule": "Lab"}},
+     "diagnosis.extension_zones.internal_gain_schedule: 'Lab' is not a Zone"),
+    ({"output": "lab_heating_w"}, "diagnosis.output: 'lab_heating_w' is not an output"),
+    ({"parameters": ["no_such_input"]}, "diagnosis.parameters[0]: 'no_such_input'")])
+def test_check_refuses_what_diagnose_would_refuse(tmp_path, section, expected):
+    """check said 'config is valid' and diagnose then refused the same config."""
+    raw = _surrogate_raw()
+    raw["diagnosis"] = section
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), expected)

@@ -75,7 +75,10 @@ def finished(tmp_path_factory) -> Path:
     truth = folder / "truth.yaml"
     truth.write_text("seed: 3\nvalues: {}\n")
     assert_ok(invoke("synth", config, "--truth", truth))
-    assert_ok(invoke("validate", config, "--measured", folder / "run" / "truth" / "measured.csv"))
+    text = assert_ok(invoke("validate", config, "--measured",
+                            folder / "run" / "truth" / "measured.csv"))
+    # what the threshold is for is said (a reader once compared it with nMCRPS)
+    assert "accepted as valid when its score is at most the threshold" in " ".join(text.split())
     return folder
 
 

@@ -136,6 +136,10 @@ def test_cli_null_case_writes_the_contract_and_invents_no_cause(surrogate_base, 
     assert "**Verdict: none.**" in (out / "diagnosis.md").read_text()
     table = pd.read_csv(out / "residuals.csv")
     assert len(table) == record["hours"]["calibration"] + record["hours"]["heldout"]
+    # the held-out block's first hour is the first row of that block, not the period's first
+    first_heldout = table.loc[table["block"] == "heldout", "timestamp"].iloc[0]
+    assert pd.Timestamp(record["hours"]["heldout_first"]) == pd.Timestamp(first_heldout)
+    assert f"(from {record['hours']['heldout_first']})" in (out / "diagnosis.md").read_text()
     # a second diagnosis into the same folder moves the first aside, figures and all
     again = CliRunner().invoke(app, ["diagnose", str(surrogate_base), "--measured",
                                      str(case.measured), "--out", str(out), "--no-progress"])

@@ -424,3 +424,14 @@ def test_the_console_table_names_each_extension_by_its_cause_and_face():
     text = console.export_text()
     assert "+ solar_aperture (west) (round 1)" in text
     assert "+ solar_aperture (north) (round 1)" in text
+
+
+def test_an_aperture_on_a_face_the_zone_lacks_is_labelled_as_such():
+    """A west aperture of a zone with interior walls east and west read as a west facade."""
+    from bpsflow.diagnosis.report import _extension_label
+
+    own = {"name": "solar_aperture", "cause": "solar_aperture (south)", "zone": "EXAM",
+           "facade": "south", "surfaces": ["EXAM South Wall"]}
+    lacking = {**own, "cause": "solar_aperture (west)", "facade": "west", "surfaces": []}
+    assert "south facade: EXAM South Wall" in _extension_label(own)
+    assert "the zone has no outdoor surface facing west" in _extension_label(lacking)

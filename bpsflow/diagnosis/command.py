@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from bpsflow.config import Config
 from bpsflow.diagnosis.report import REPORT_FILES, write_diagnosis
 from bpsflow.diagnosis.workflow import Diagnosis, check_settings, choose_output, diagnose, settings_of
 from bpsflow.errors import BpsflowError
+from bpsflow.progress import LoggedProgress
 from bpsflow.simulation.rundir import move_aside
 
 
@@ -58,9 +59,10 @@ def run_diagnose(config: Config, measured_path: Path, out: Path | None = None, *
     check_varies(config, measured, output, measured_path)
     # base fit, signatures or one fit per candidate extension per round: an estimate the bar extends
     expected = 1 + len(settings.extensions)
-    with Progress(TextColumn("[bold]diagnose[/bold] {task.description}"), BarColumn(),
-                  MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
-                  console=console, disable=not show_progress, transient=False) as progress:
+    with LoggedProgress(TextColumn("[bold]diagnose[/bold] {task.description}"), BarColumn(),
+                        MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
+                        console=console, disable=not show_progress, transient=False,
+                        name="diagnose") as progress:
         task = progress.add_task("fits", total=expected)
 
         def step(label: str) -> None:

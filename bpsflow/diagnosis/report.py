@@ -89,7 +89,9 @@ def diagnosis_record(d: Diagnosis) -> dict:
         "output": d.output,
         "backend": d.backend,
         "hours": {"calibration": int(d.calibration.sum()), "heldout": int((~d.calibration).sum()),
-                  "first": str(d.timestamps[0]), "last": str(d.timestamps[-1])},
+                  "first": str(d.timestamps[0]), "last": str(d.timestamps[-1]),
+                  "heldout_first": str(d.timestamps[~d.calibration][0])
+                  if (~d.calibration).any() else None},
         "scorecard": {"base": d.scorecard, "final": d.final_scores},
         "fitted_parameters": {"base": d.base.fit.named, "final": d.final.fit.named},
         "parameter_check": d.parameter_check,
@@ -270,9 +272,10 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
     base, final = d.scorecard, d.final_scores
     lines = [f"# Diagnosis of {d.output}", "",
              f"**Verdict: {d.verdict}.** {record['cause']['summary']}", "",
-             f"Backend {d.backend}; {record['hours']['calibration']} calibration hours, "
-             f"{record['hours']['heldout']} held-out hours ({record['hours']['first']} – "
-             f"{record['hours']['last']}); {d.seconds:.0f} s.", "",
+             f"Backend {d.backend}; hours {record['hours']['first']} – "
+             f"{record['hours']['last']}: {record['hours']['calibration']} calibration hours, "
+             f"{record['hours']['heldout']} held-out hours (from "
+             f"{record['hours']['heldout_first']}); {d.seconds:.0f} s.", "",
              "## Scorecard", "",
              "| model | block | NMBE | CV(RMSE) | nMCRPS | Guideline 14 |",
              "|---|---|---|---|---|---|"]
@@ -358,8 +361,12 @@ def _extension_label(entry: dict) -> str:
     block = entry.get("schedule")
     if isinstance(block, dict) and "day_type" in block:
         where.append(f"{block['day_type']} {block['start_hour']}–{block['end_hour']} h")
-    if entry.get("facade"):
-        surfaces = ", ".join(entry.get("surfaces") or []) or "compass plane"
+    if entry.get("facade") == "sky_diffuse":
+        where.append("the sky's diffuse irradiance")
+    elif entry.get("facade"):
+        surfaces = ", ".join(entry.get("surfaces") or []) or (
+            f"the zone has no outdoor surface facing {entry['facade']}: the {entry['facade']} "
+            "compass plane's irradiance, whatever would carry it")
         where.append(f"{entry['facade']} facade: {surfaces}")
     name = entry.get("cause", entry["name"])
     return f"{name} ({'; '.join(where)})" if where else name

@@ -167,6 +167,7 @@ def check_settings(config: Config, settings: DiagnosisSettings) -> list[Paramete
                            f"config's tests (expected one of {sorted(set(wanted))})",
                            source=config.source)
     fitted = fitted_parameters(config, settings)
+    _check_zones(config, settings)
     names = {p.name for p in fitted}
     for i, name in enumerate(settings.suspects or []):
         if name in names:
@@ -175,6 +176,19 @@ def check_settings(config: Config, settings: DiagnosisSettings) -> list[Paramete
                                f"expected an input that the fit leaves at its nominal value",
                                source=config.source)
     return fitted
+
+
+def _check_zones(config: Config, settings: DiagnosisSettings) -> None:
+    """``diagnosis.zone`` and ``diagnosis.extension_zones`` must name zones of the model."""
+    if not settings.zone and not settings.extension_zones:
+        return
+    from bpsflow.diagnosis.extensions import diagnosis_zone
+    from bpsflow.simulation.idf import model_objects
+
+    model = model_objects(config.model)
+    for extension in [None, *settings.extension_zones]:
+        diagnosis_zone(config, settings.output, None if extension is None else str(extension),
+                       model=model)
 
 
 def choose_output(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings) -> str:
@@ -1517,7 +1531,8 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                      f"{cv['cvrmse_after']:.3%}, encompassing p = {test['p_value']:.3g}" if cv else
                      " (not cross-validated: ranked below the best "
                      f"{settings.cv_candidates})")
-                 + f": {'passes' if passed else 'rejected'}"
+                 + (": passes the gates (only the round's best passing cause is accepted)"
+                    if passed else ": rejected")
                  + (" (fitted at zero: not a cause)" if at_zero else ""))
         out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{candidate.cause}")))
     for candidate, variant in flat:

@@ -38,7 +38,6 @@ from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
-    Progress,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
@@ -50,6 +49,7 @@ from bpsflow.design_record import (
     write_simulation_record,
 )
 from bpsflow.errors import BpsflowError
+from bpsflow.progress import LoggedProgress
 from bpsflow.simulation import rundir
 from bpsflow.simulation.backend import Backend, Batch
 from bpsflow.simulation.executor import Executor, executor_for
@@ -216,8 +216,8 @@ def run_ensemble(config: Config, samples: pd.DataFrame, backend: Backend, *,
                    TextColumn("[red]{task.fields[failed]} failed"), TimeElapsedColumn(),
                    TextColumn("ETA"), TimeRemainingColumn()]
         try:
-            with Progress(*columns, console=console,
-                          disable=not show_progress or not todo) as progress:
+            with LoggedProgress(*columns, console=console,
+                                disable=not show_progress or not todo) as progress:
                 task = progress.add_task(label or backend.name, total=len(todo), failed=0)
                 staged = None if executor.shared_filesystem else stage_inputs(config)
                 prepare = getattr(backend, "prepare", None)  # optional (see Backend)
