@@ -162,6 +162,19 @@ def test_a_fixed_discomfort_setpoint_must_be_a_room_temperature(hydronic):
             _setpoints(outcome, hydronic, samples)
 
 
+def test_an_overlay_value_energyplus_refuses_names_the_intervention(tmp_path, hydronic):
+    """It named the config and was found after the run plan was printed."""
+    raw = hydronic.parameter("leakage_area").model_dump(mode="json", exclude_none=True)
+    raw["mode"], raw["distribution"] = "absolute", {"type": "constant", "value": -5.0}
+    import json
+
+    message = _bad(tmp_path, lambda t: t.split("change:\n")[0] + "change:\n  overlay:\n"
+                   "    parameters:\n    - " + json.dumps(raw) + "\nweek:"
+                   + t.split("week:", 1)[1], hydronic)
+    assert "bad.yaml" in message and "change.overlay: with the change" in message \
+        and "EnergyPlus refuses" in message
+
+
 def test_edit_of_unknown_field(tmp_path, hydronic):
     message = _bad(tmp_path, lambda t: t.replace("Setpoint at Outdoor Low Temperature",
                                                  "Setpoint at Outdoor Lo Temperature"), hydronic)

@@ -134,6 +134,15 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                            where="change.overlay") if intervention.change.overlay else \
         config.model_copy(deep=True)
     _check_overlaid_parameters(config, changed, source)
+    if intervention.change.overlay:
+        from bpsflow.simulation.target_bounds import check_distribution_support
+
+        try:
+            # before any run: the config passed this check, so a failure is the overlay's
+            check_distribution_support(changed)
+        except BpsflowError as exc:
+            raise BpsflowError(f"change.overlay: with the change, {exc.message}",
+                               source=source) from None
     added: dict[str, float] = {}
     moved = False                     # whether any edit changes a field's value
     for i, edit in enumerate(intervention.change.edits):
