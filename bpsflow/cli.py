@@ -6,10 +6,13 @@ paragraph naming the file and key, and exit with status 2; no traceback.
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import functools
 import os
+import signal
 import sys
+import threading
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -816,7 +819,23 @@ def decide(config: Path = ConfigArg,
 
 
 def main() -> None:  # pragma: no cover
-    app(prog_name="bpsflow")
+    """The ``bpsflow`` executable: the typer app, then a quiet end on a late Ctrl-C."""
+    try:
+        app(prog_name="bpsflow")
+    finally:
+        # The command's work is over (finished, or interrupted with its files written). A
+        # Ctrl-C now lands in the interpreter's shutdown, where a worker pool joins its
+        # threads: it printed tracebacks there and could leave the process hanging. It ends
+        # the process at once instead.
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, _exit_at_once)
+
+
+def _exit_at_once(signum: int, frame: object) -> None:  # pragma: no cover
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(130)
 
 
 if __name__ == "__main__":  # pragma: no cover

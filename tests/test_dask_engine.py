@@ -10,6 +10,7 @@ filesystem.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -230,9 +231,9 @@ def test_engine_settings_are_validated_with_the_key_named(tmp_path):
 
 
 @pytest.mark.energyplus
-@pytest.mark.parametrize("engine", ["local", "dask"])
+@pytest.mark.parametrize("engine, presses", [("local", 1), ("dask", 1), ("local", 2)])
 @pytest.mark.slow
-def test_ctrl_c_stops_the_run_and_leaves_it_resumable(tmp_path, engine):
+def test_ctrl_c_stops_the_run_and_leaves_it_resumable(tmp_path, engine, presses):
     raw = short_raw(samples=30)
     path = write_config(tmp_path, raw)
     bpsflow = str(Path(sys.executable).with_name("bpsflow"))
@@ -249,12 +250,21 @@ def test_ctrl_c_stops_the_run_and_leaves_it_resumable(tmp_path, engine):
     while len(list(instances.glob("*/outputs.parquet"))) < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
     os.killpg(running.pid, signal.SIGINT)
+    if presses == 2:
+        # an impatient second Ctrl-C, while the pool shuts down: it once hung the process
+        # (loky joining its threads) and printed tracebacks
+        time.sleep(0.3)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(running.pid, signal.SIGINT)
     try:
         _, stderr = running.communicate(timeout=60)
     except subprocess.TimeoutExpired:
         os.killpg(running.pid, signal.SIGKILL)
         raise AssertionError("the interrupted run did not stop within 60 s") from None
-    assert running.returncode == 130, (running.returncode, stderr)
+    # 130 from the command, or the signal itself when it lands after Python's own handler
+    # is gone (the shell shows 130 for both)
+    assert running.returncode in ((130,) if presses == 1 else (130, -signal.SIGINT)), \
+        (running.returncode, stderr)
     assert "interrupted: finished instances are kept" in " ".join(stderr.split())
     assert "Traceback" not in stderr
     finished = len(list(instances.glob("*/outputs.parquet")))
