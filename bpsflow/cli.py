@@ -24,7 +24,7 @@ from rich.table import Table
 
 from bpsflow.errors import BpsflowError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
                   help="Building performance simulation under uncertainty.")
 console = Console()
 err_console = Console(stderr=True)

@@ -558,3 +558,14 @@ def test_the_tools_schedules_carry_type_limits():
     assert limits == {TEMPERATURE_LIMITS, CONTROL_TYPE_LIMITS}
     for schedule in (o for o in objects if o.type.startswith("SCHEDULE:")):
         assert schedule.fields[1] in limits, schedule.name
+
+
+def test_help_shows_every_option_name_whole():
+    """rich's two-column help cut --allow-unconverged to '--allow-unconverg…' at 80 columns."""
+    from typer.testing import CliRunner
+
+    from bpsflow.cli import app
+
+    result = CliRunner().invoke(app, ["calibrate", "--help"], terminal_width=80)
+    assert result.exit_code == 0
+    assert "--allow-unconverged" in result.output and "…" not in result.output
