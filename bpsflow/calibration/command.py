@@ -209,6 +209,9 @@ def print_run(run, console: Console) -> None:
                       f"{entry['deterministic']:.3g}",
                       "-" if truth is None else f"{truth:.3g}{mark}")
     console.print(table)
+    for note in getattr(run.paired, "notes", []):
+        # rows left out or subsampled: the table's counts and metrics rest on what is left
+        console.print(f"[yellow]{run.scenario.name}: {note}[/yellow]", highlight=False)
     bounded = [f"{e['name']} ({e['deterministic_at_bound']} end)"
                for e in parameter_table(run) if e["deterministic_at_bound"]]
     if bounded:
