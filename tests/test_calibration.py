@@ -385,6 +385,10 @@ def test_decide_takes_the_physical_checks_runs_of_the_held_out_week(tmp_path):
     assert simulated["decision"]["rules"] == reused["decision"]["rules"]
     # the measured file is recorded, and the earlier decision is moved aside, not overwritten
     assert simulated["decision"]["measured"] == str(measured.resolve())
+    converged = json.loads((calibration / "calibration.json").read_text())[
+        "diagnostics"]["converged"]
+    assert simulated["decision"]["calibration_converged"] is converged
+    assert ("did not converge" in simulated["output"]) is (not converged)
     assert len(list((decision / "previous").glob("*/decision.json"))) == 1
     assert "the earlier decision" in " ".join(simulated["output"].split())
     assert "parameter south_wall_insulation_conductivity:" in " ".join(

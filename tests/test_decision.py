@@ -346,8 +346,23 @@ def test_a_setpoint_parameter_must_give_a_room_setpoint(hydronic):
                    setpoint=Setpoint(parameter="setpoint_meeting_room"))
     assert _setpoints(fine, hydronic, samples)[0] == pytest.approx(21.5)
     wrong = fine.model_copy(update={"setpoint": Setpoint(parameter="glazing_u_value")})
-    with pytest.raises(BpsflowError, match="not a room temperature setpoint"):
+    with pytest.raises(BpsflowError, match="not a schedule a ThermostatSetpoint object uses"):
         _setpoints(wrong, hydronic, samples)
+
+
+def test_a_setpoint_parameter_must_set_a_thermostat_schedule(hydronic):
+    """A lighting density of 6-14 W/m² passed the 5-35 °C range and made every hour
+    comfortable (the decision flipped)."""
+    from bpsflow.decision.workflow import _setpoints
+
+    lighting = "lighting_power_open_office"
+    nominal = hydronic.parameter(lighting).distribution.nominal
+    samples = pd.DataFrame({lighting: [nominal]})
+    outcome = Outcome(name="d", output="meeting_room_air_temperature_c", statistic="discomfort",
+                      setpoint=Setpoint(parameter=lighting))
+    with pytest.raises(BpsflowError, match=f"'{lighting}' sets .* not a schedule a "
+                                           "ThermostatSetpoint object uses"):
+        _setpoints(outcome, hydronic, samples)
 
 
 def test_a_calibration_record_without_parameters_or_with_bad_draws_is_refused(tmp_path,

@@ -337,6 +337,13 @@ def _setpoints(outcome, config: Config, samples: pd.DataFrame,
         raise BpsflowError(f"outcomes ({outcome.name}).setpoint.parameter: '{parameter.name}' "
                            "sets no numeric model field, so it gives no setpoint temperature",
                            source=source)
+    if not _sets_a_thermostat_schedule(config, fields[0].obj):
+        # a lighting density of 6-14 W/m² passed the 5-35 range below and made every
+        # hour comfortable
+        raise BpsflowError(f"outcomes ({outcome.name}).setpoint.parameter: '{parameter.name}' "
+                           f"sets {fields[0].where}, which is not a schedule a "
+                           "ThermostatSetpoint object uses; name the parameter of the zone's "
+                           "heating setpoint schedule, or give setpoint.value_c", source=source)
     nominal = float(fields[0].nominal)  # type: ignore[arg-type]  # kept only when numeric
     values: np.ndarray = np.array(apply_mode(parameter.mode, nominal,
                                              samples[parameter.name].to_numpy()), dtype=np.float64)
@@ -348,6 +355,18 @@ def _setpoints(outcome, config: Config, samples: pd.DataFrame,
             f"temperature setpoint ({SETPOINT_RANGE_C[0]:g}-{SETPOINT_RANGE_C[1]:g} °C); name "
             "the parameter of the zone's heating setpoint", source=source)
     return values
+
+
+def _sets_a_thermostat_schedule(config: Config, obj) -> bool:
+    """Whether ``obj`` is a schedule that some ``ThermostatSetpoint:*`` object names."""
+    from bpsflow.simulation.idf import model_objects
+
+    if not obj.type.startswith("SCHEDULE"):
+        return False
+    name = obj.name.strip().upper()
+    return any(field.strip().upper() == name
+               for other in model_objects(config.model).objects
+               if other.type.startswith("THERMOSTATSETPOINT:") for field in other.fields)
 
 
 def decide_one(config: Config, calibrated: Calibrated, intervention: Intervention,
@@ -578,11 +597,18 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
     records = []
     for calibrated in calibrations:
         out_dir = calibrated.folder / DECISION_DIR / intervention.name
+        diagnostics = calibrated.record.get("diagnostics") or {}
+        unconverged = diagnostics.get("converged") is False
+        if unconverged:
+            console.print(f"[yellow]{_tag(calibrated)} warning: this calibration's NUTS run did "
+                          f"not converge ({'; '.join(diagnostics.get('reasons') or [])}); the "
+                          "decision rests on its draws as they are[/yellow]", highlight=False)
         records.append(decide_one(week, calibrated, intervention, changed_week, data.frame, out_dir,
                                   backend=backend, jobs=jobs, show_progress=show_progress,
                                   console=console, source=Path(intervention_path),
                                   provenance={"measured": str(Path(path).resolve()),
-                                              "measured_notes": list(data.notes)}))
+                                              "measured_notes": list(data.notes),
+                                              "calibration_converged": not unconverged}))
         for rule in records[-1]["rules"]:
             console.print(f"{_tag(calibrated)} {rule['name']}: p = "
                           f"{rule['underperformance_probability']:.3f}, "
