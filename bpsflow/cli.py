@@ -752,6 +752,14 @@ def calibrate(config: Path = ConfigArg,
     from bpsflow.calibration.command import calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
 
+    if scenarios and (outputs or resolution):
+        # each scenario names its own outputs and resolution: an override would be ignored
+        raise BpsflowError(f"{'--outputs' if outputs else '--resolution'}: --scenarios "
+                           "calibrates each scenario of calibration.scenarios with its own "
+                           "outputs and resolution; drop the option, or drop --scenarios")
+    if method == "deterministic" and any(v is not None for v in (chains, warmup, samples)):
+        raise BpsflowError("--chains/--warmup/--samples set the Bayesian sampler; --method "
+                           "deterministic does not sample")
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     settings = apply_overrides(settings_of(cfg),
                                outputs=[o.strip() for o in outputs.split(",")] if outputs else None,

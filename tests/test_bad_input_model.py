@@ -569,3 +569,14 @@ def test_help_shows_every_option_name_whole():
     result = CliRunner().invoke(app, ["calibrate", "--help"], terminal_width=80)
     assert result.exit_code == 0
     assert "--allow-unconverged" in result.output and "…" not in result.output
+
+
+@pytest.mark.parametrize("extra, named", [
+    (["--scenarios", "--resolution", "hourly"], "--resolution: --scenarios"),
+    (["--scenarios", "--outputs", "heating_power_w"], "--outputs: --scenarios"),
+    (["--method", "deterministic", "--chains", "8"], "--method deterministic does not sample")])
+def test_calibrate_options_that_would_be_ignored_are_refused(tmp_path, extra, named):
+    """--scenarios ran each scenario as configured whatever --resolution said."""
+    config = write_config(tmp_path, short_raw())
+    result = invoke("calibrate", config, "--measured", tmp_path / "nowhere.csv", *extra)
+    assert_clean_error(result, named)
