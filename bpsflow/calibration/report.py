@@ -68,7 +68,8 @@ def parameter_table(run: CalibrationRun) -> list[dict]:
     Contraction is ``1 - posterior 90 % width / prior 90 % width`` (0: the data
     taught nothing; 1: pinned down).
     """
-    optimum = unit_to_values(run.deterministic.unit[None, :], run.parameters)[0]
+    optimum_unit = run.deterministic.unit
+    optimum = unit_to_values(optimum_unit[None, :], run.parameters)[0]
     draws = None if run.unit_draws is None else unit_to_values(run.unit_draws, run.parameters)
     rows = []
     for j, p in enumerate(run.parameters):
@@ -82,7 +83,7 @@ def parameter_table(run: CalibrationRun) -> list[dict]:
                  "emulator_effect": float(run.effects[j]),
                  "emulator_lengthscale": float(run.emulator.hyper.t_lengthscales[j]),
                  "deterministic": float(optimum[j]),
-                 "deterministic_at_bound": _at_bound(float(run.deterministic.unit[j]))}
+                 "deterministic_at_bound": _at_bound(float(optimum_unit[j]))}
         if draws is not None:
             post = _summary(draws[:, j])
             entry["posterior"] = post

@@ -245,9 +245,9 @@ def _overlay_changes(config: Config, changed: Config) -> list[str]:
     if changed.model.idf != config.model.idf:
         said.append(f"model.idf: {config.model.idf} -> {changed.model.idf}")
     if changed.model.idf_objects != config.model.idf_objects:
-        said.append("model.idf_objects: " + ", ".join(map(str, config.model.idf_objects or
-                                                         ["none"])) + " -> " +
-                    ", ".join(map(str, changed.model.idf_objects or ["none"])))
+        said.append("model.idf_objects: "
+                    + (", ".join(map(str, config.model.idf_objects)) or "none") + " -> "
+                    + (", ".join(map(str, changed.model.idf_objects)) or "none"))
     return said
 
 
