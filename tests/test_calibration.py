@@ -330,6 +330,9 @@ def test_cli_calibrate_writes_the_documented_files(tmp_path):
     assert {p["name"] for p in record["parameters"]} == {"glazing_dirt_correction",
                                                          "wall_stack_coefficient"}
     assert all("contraction" in p and "truth_in_90" in p for p in record["parameters"])
+    at_bound = [p["name"] for p in record["parameters"] if p["emulator_lengthscale"] >= 999]
+    assert ("the emulator finds no effect of" in " ".join(result.output.split())) \
+        is bool(at_bound)
     assert record["emulator"]["holdout"]["r2"] > 0.99
     models = {row["model"] for row in record["heldout"]}
     assert models == {"prior", "bayes_gp", "bayes_physical", "deterministic_physical"}

@@ -171,6 +171,10 @@ def measured_outputs(config: Config, measured: pd.DataFrame) -> list[str]:
     return [o for o in default_outputs(config) if o in measured.columns]
 
 
+#: An emulator length-scale (prior-CDF units) at or above this sits at its MLE bound (1e3).
+LENGTHSCALE_AT_BOUND = 999.0
+
+
 def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: Scenario,
                        design: Design, measured: pd.DataFrame, measured_source: Path | None,
                        method: str, out_dir: Path, jobs: int | None = None,
@@ -209,6 +213,15 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
         console.print(f"[{scenario.name}] note: calibration.emulator.points is {em.points}, "
                       f"but the training runs hold only {len(emulator.fit_points)} (run, "
                       f"{scenario.resolution} row) pairs; the emulator is fitted on all of them")
+    flat = [p.name for p, scale in zip(parameters, emulator.hyper.t_lengthscales)
+            if scale >= LENGTHSCALE_AT_BOUND]
+    if flat:
+        # the MLE can park a real input's length-scale at its bound: the posterior then
+        # rests on an emulator that ignores it
+        console.print(f"[yellow][{scenario.name}] note: the emulator finds no effect of "
+                      f"{', '.join(flat)} on these observations (length-scale at its bound); "
+                      "if the design runs say otherwise, more design runs or emulator points "
+                      "may let it see one[/yellow]", highlight=False)
     if emulator.test is not None:
         console.print(f"[{scenario.name}] emulator: hold-out R² {emulator.test.r2:.4f} "
                       f"({len(emulator.test.test_runs)} runs), MLE fit "
