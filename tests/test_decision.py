@@ -81,6 +81,18 @@ def test_correlation_across_scenarios():
     assert table["cv"]["flat"] is None
 
 
+def test_correlation_caveats_against_the_t_critical_value():
+    """n = 3: r_crit = 0.997 (Student t, 1 dof: 12.706 / sqrt(1 + 12.706²)); a risk that moves by
+    2 outcomes in 1000 is flagged, one that moves by 0.3 is not."""
+    from bpsflow.decision.risk import correlation_caveats
+
+    caveats = correlation_caveats({"D1": [0.002, 0.0, 0.0], "D2": [0.1, 0.4, 0.2]}, 1000)
+    assert "3 scenarios: |r| under 1.00 is not significant at 5%" in caveats[0]
+    assert len(caveats) == 2 and caveats[1].startswith("D1 differs across the scenarios by 0.002")
+    six = correlation_caveats({"D2": [0.1, 0.4, 0.2, 0.3, 0.5, 0.6]}, 1000)
+    assert six == ["6 scenarios: |r| under 0.81 is not significant at 5%"]
+
+
 @pytest.fixture(scope="module")
 def hydronic():
     return load_config(CONFIGS / "hydronic.yaml")

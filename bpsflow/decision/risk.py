@@ -139,3 +139,33 @@ def accuracy_risk_correlation(accuracy: Mapping[str, Sequence[float]],
                 row[risk] = float(np.corrcoef(a[ok], b[ok])[0, 1])
         table[metric] = row
     return table
+
+
+def correlation_caveats(risks: Mapping[str, Sequence[float]], outcomes_sampled: int,
+                        alpha: float = 0.05, resolution_multiple: float = 5.0) -> list[str]:
+    """What limits the accuracy–risk correlations across so few scenarios.
+
+    A Pearson r over ``n`` scenarios is significant at ``alpha`` (two-sided) only
+    above ``r_crit = t / sqrt(n − 2 + t²)``, ``t`` the Student quantile with
+    ``n − 2`` degrees of freedom; and a risk that differs across the scenarios
+    by no more than ``resolution_multiple`` sampled outcomes (a probability
+    step is ``1 / outcomes_sampled``) moves by sampling noise alone.
+    """
+    from scipy import stats
+
+    caveats = []
+    count = max((len(v) for v in risks.values()), default=0)
+    if count >= 3:
+        t = float(stats.t.ppf(1 - alpha / 2, count - 2))
+        critical = t / np.sqrt(count - 2 + t * t)
+        caveats.append(f"{count} scenarios: |r| under {critical:.2f} is not significant at "
+                       f"{alpha:.0%}")
+    step = 1.0 / max(outcomes_sampled, 1)
+    for name, values in risks.items():
+        finite = np.asarray(values, dtype=float)
+        finite = finite[np.isfinite(finite)]
+        if finite.size and np.ptp(finite) <= resolution_multiple * step:
+            caveats.append(f"{name} differs across the scenarios by {np.ptp(finite):.4g}, "
+                           f"within {resolution_multiple:g} sampled outcomes ({step:.2g} each): "
+                           "its correlations are sampling noise")
+    return caveats

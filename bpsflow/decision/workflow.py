@@ -617,15 +617,19 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
         console.print(f"wrote {out_dir / DECISION_FILE}")
     summary: dict = {"decisions": records}
     if scenarios:
-        from bpsflow.decision.risk import accuracy_risk_correlation
+        from bpsflow.decision.risk import accuracy_risk_correlation, correlation_caveats
 
         accuracy, risks = _accuracy_and_risks(calibrations, records)
         summary["correlation"] = accuracy_risk_correlation(accuracy, risks)
+        caveats = correlation_caveats(risks, min(r["outcomes_sampled"] for r in records))
+        for caveat in caveats:
+            console.print(f"[yellow]correlation: {caveat}[/yellow]", highlight=False)
         out = calibration / DECISION_DIR / intervention.name
         out.mkdir(parents=True, exist_ok=True)
         write_json(out / "correlation.json", {"scenarios": [c.name for c in calibrations],
                                               "accuracy": accuracy, "risks": risks,
-                                              "pearson": summary["correlation"]})
+                                              "pearson": summary["correlation"],
+                                              "caveats": caveats})
         summary["correlation_figure"] = str(plot_correlation(summary["correlation"],
                                                              out / "accuracy_vs_risk.png"))
         console.print(f"wrote {out / 'correlation.json'} and {summary['correlation_figure']}")
