@@ -843,3 +843,28 @@ def test_a_deterministic_optimum_at_its_priors_end_is_said(tmp_path):
     at_bound = {p["name"]: p["deterministic_at_bound"] for p in record["parameters"]}
     # (the other input may be pushed to an end as well, compensating: not asserted)
     assert at_bound["glazing_dirt_correction"] == "lower"
+
+
+def test_a_truth_without_some_calibration_parameters_says_so(tmp_path, monkeypatch):
+    """A truth of another run once reported '5 of 5 covered' with a sixth parameter unjudged."""
+    from bpsflow.calibration import workflow
+    from bpsflow.config import Parameter
+    from bpsflow.distributions import Uniform
+
+    def parameter(name: str) -> Parameter:
+        return Parameter(name=name, mode="absolute",
+                         distribution=Uniform(type="uniform", lower=0.0, upper=1.0),
+                         targets=[{"object": "Material", "name": "x", "field": "Thickness"}])
+
+    import io
+
+    from rich.console import Console
+
+    printed = io.StringIO()
+    monkeypatch.setattr(workflow, "console", Console(file=printed, width=200))
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"values": {"a": 0.5}}))
+    values = workflow.read_truth(truth, [parameter("a"), parameter("b")])
+    assert values == {"a": 0.5}
+    said = " ".join(printed.getvalue().split())
+    assert "no true value of calibration parameter(s) b; their coverage is not judged" in said

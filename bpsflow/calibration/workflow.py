@@ -533,4 +533,10 @@ def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
         except (TypeError, ValueError):
             raise BpsflowError(f"values.{parameter.name}: expected a number, got "
                                f"{values[parameter.name]!r}", source=path) from None
+    missing = [p.name for p in parameters if p.name not in truth]
+    if missing:
+        # a truth of another run: its coverage count would silently leave these out
+        console.print(f"[yellow]{path.name}: no true value of calibration parameter(s) "
+                      f"{', '.join(missing)}; their coverage is not judged[/yellow]",
+                      highlight=False)
     return truth
