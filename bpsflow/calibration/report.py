@@ -420,5 +420,9 @@ def plot_trace(run: CalibrationRun, path: Path) -> Path:
         rhat = run.convergence.per_quantity[name]["rhat"]
         ax.set_title(f"{name} (R-hat {rhat:.3f})", fontsize=7)
         ax.tick_params(labelsize=6)
+    # the sampler's own coordinates, not the inputs' units: said on the figure itself
+    fig.suptitle("NUTS traces on the sampler's scale: calibration inputs as standard-normal z "
+                 "(z = Φ⁻¹ of the prior CDF), δ and ε hyperparameters as logarithms; the "
+                 "inputs' own values are in prior_posterior.png", fontsize=7)
     save_figure(fig, path, dpi=100)
     return path
