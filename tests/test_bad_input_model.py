@@ -580,3 +580,10 @@ def test_calibrate_options_that_would_be_ignored_are_refused(tmp_path, extra, na
     config = write_config(tmp_path, short_raw())
     result = invoke("calibrate", config, "--measured", tmp_path / "nowhere.csv", *extra)
     assert_clean_error(result, named)
+
+
+def test_an_unknown_output_of_the_outputs_option_names_the_option(tmp_path):
+    config = write_config(tmp_path, short_raw())
+    result = invoke("calibrate", config, "--measured", tmp_path / "nowhere.csv",
+                    "--outputs", "heating_powr_w")
+    assert_clean_error(result, "--outputs: 'heating_powr_w' is not an output of the config")
