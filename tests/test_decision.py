@@ -385,7 +385,11 @@ def test_a_calibration_record_without_parameters_or_with_bad_draws_is_refused(tm
     from bpsflow.decision.workflow import read_calibration
 
     folder = tmp_path / "calibration"
+    with pytest.raises(BpsflowError, match="calibration does not exist"):
+        read_calibration(folder, hydronic)
     folder.mkdir()
+    with pytest.raises(BpsflowError, match="no calibration.json in"):
+        read_calibration(folder, hydronic)
     good = {"parameters": [{"name": "leakage_area"}],
             "config": {"fingerprint": config_fingerprint(hydronic)}}
     pd.DataFrame({"leakage_area": [1.0, 1.2]}).to_parquet(folder / "posterior.parquet")

@@ -71,6 +71,9 @@ def read_calibration(folder: Path, config: Config) -> Calibrated:
 
     folder = Path(folder)
     record_path, posterior_path = folder / CALIBRATION_FILE, folder / POSTERIOR_FILE
+    if not folder.is_dir():
+        raise BpsflowError(f"--calibration: {folder} does not exist (expected the folder "
+                           "'bpsflow calibrate' wrote, RUN_DIR/calibration)")
     if not record_path.is_file():
         raise BpsflowError(f"--calibration: no {CALIBRATION_FILE} in {folder} (expected the "
                            f"folder 'bpsflow calibrate' wrote, RUN_DIR/calibration)")
