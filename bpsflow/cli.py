@@ -98,6 +98,16 @@ def _load(config: Path, run_dir: Path | None,
 _held: contextvars.ContextVar[ExitStack | None] = contextvars.ContextVar("held", default=None)
 
 
+def _lock_folder(folder: Path) -> None:
+    """Lock a folder other than the run directory (created if needed) until the command ends."""
+    from bpsflow.simulation.rundir import RunLock, prepare_run_dir
+
+    stack = _held.get()
+    if stack is None:
+        raise RuntimeError("_lock_folder is for CLI commands wrapped by _friendly")
+    stack.enter_context(RunLock(prepare_run_dir(folder, where="--out")))
+
+
 def _lock(cfg) -> Path:
     """Create the run directory if needed and lock it until the command ends.
 
@@ -770,6 +780,11 @@ def calibrate(config: Path = ConfigArg,
                                resolution=resolution, chains=chains, warmup=warmup,
                                samples=samples, runs=runs, source=cfg.source)
     _lock(cfg)
+    from bpsflow.calibration.command import DEFAULT_OUT
+
+    # decide locks the calibration folder it reads: the same lock keeps it from reading a
+    # calibration this command is writing
+    _lock_folder(out.resolve() if out else cfg.run_dir.resolve() / DEFAULT_OUT)
     outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
                               out=out.resolve() if out else None, backend=backend, jobs=jobs,
                               truth_path=truth, settings=settings, show_progress=not no_progress,
@@ -826,6 +841,9 @@ def decide(config: Path = ConfigArg,
 
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
     _lock(cfg)
+    if calibration.is_dir():
+        # a calibrate writing there (from another run directory, or with --out) holds it too
+        _lock_folder(calibration.resolve())
     run_decide(cfg, calibration.resolve(), intervention, scenarios=scenarios,
                measured_path=measured, jobs=jobs, show_progress=not no_progress, console=console)
 

@@ -417,3 +417,34 @@ def test_a_decision_of_another_intervention_with_the_same_name_is_kept(tmp_path,
         update={"days": 6})})
     with pytest.raises(BpsflowError, match="same name whose content differs"):
         _check_earlier_decision(tmp_path, intervention_fingerprint(other), Path("x.yaml"))
+
+
+def test_decide_waits_for_no_calibrate_writing_its_calibration_folder(tmp_path):
+    """decide with another --run-dir once read and wrote a calibration folder while a
+    calibrate (of another run directory) was writing it."""
+    import subprocess
+    import sys
+    import time
+
+    from typer.testing import CliRunner
+
+    from bpsflow.cli import app
+
+    calibration = tmp_path / "calibration"
+    calibration.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\nfrom bpsflow.simulation.rundir import RunLock\n"
+         "with RunLock(sys.argv[1]):\n    print('held', flush=True)\n    time.sleep(60)\n",
+         str(calibration)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        started = time.monotonic()
+        result = CliRunner().invoke(app, ["decide", str(CONFIGS / "hydronic.yaml"),
+                                          "--calibration", str(calibration), "--intervention",
+                                          str(CONFIGS / "hydronic_intervention.yaml"),
+                                          "--run-dir", str(tmp_path / "scratch")])
+        assert time.monotonic() - started < 30
+    finally:
+        holder.kill()
+    assert result.exit_code == 2, result.output
+    assert "is in use by another bpsflow process" in " ".join(result.output.split())
