@@ -868,3 +868,11 @@ def test_a_truth_without_some_calibration_parameters_says_so(tmp_path, monkeypat
     assert values == {"a": 0.5}
     said = " ".join(printed.getvalue().split())
     assert "no true value of calibration parameter(s) b; their coverage is not judged" in said
+
+
+def test_no_nuts_progress_bar_off_a_terminal():
+    """tqdm's bar wrote a stream of carriage returns into log files (120 kB for one run)."""
+    settings = BayesSettings(chains=1, warmup=1, samples=1)
+    mcmc = bayes._mcmc(False, (("log_discrepancy_std", (0.0, 1.0)),), False, settings,
+                       "sequential", True, None)
+    assert mcmc.progress_bar is False       # pytest's stderr is not a terminal

@@ -671,8 +671,13 @@ def _mcmc(ard: bool, priors: tuple, lowrank: bool, settings: BayesSettings, meth
     samples new data of the same shapes without compiling again (repeated
     synthetic truths, tests).
     """
+    import sys
+
     from numpyro.infer import MCMC, NUTS
 
+    # tqdm's bar off a terminal is a stream of carriage returns (a 120 kB log of one run);
+    # the workflow prints what runs and how long it took around it
+    progress = progress and sys.stderr.isatty()
     key = (ard, priors, lowrank, settings.chains, settings.warmup, settings.samples,
            settings.target_accept, settings.dense_mass, settings.max_tree_depth, method, progress,
            n_noise, n_discrepancy)
