@@ -784,7 +784,10 @@ def calibrate(config: Path = ConfigArg,
 
     # decide locks the calibration folder it reads: the same lock keeps it from reading a
     # calibration this command is writing
-    _lock_folder(out.resolve() if out else cfg.run_dir.resolve() / DEFAULT_OUT)
+    folder = out.resolve() if out else cfg.run_dir.resolve() / DEFAULT_OUT
+    if folder.is_dir():
+        # (a folder not there yet is created after the checks: a refusal leaves none behind)
+        _lock_folder(folder)
     outcome = run_calibration(cfg, measured, method=method, all_scenarios=scenarios,
                               out=out.resolve() if out else None, backend=backend, jobs=jobs,
                               truth_path=truth, settings=settings, show_progress=not no_progress,
