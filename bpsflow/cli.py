@@ -771,12 +771,13 @@ def calibrate(config: Path = ConfigArg,
         raise BpsflowError("--chains/--warmup/--samples set the Bayesian sampler; --method "
                            "deterministic does not sample")
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
-    for name in (o.strip() for o in (outputs or "").split(",") if o.strip()):
+    output_names = [o.strip() for o in outputs.split(",")] if outputs else None
+    for name in output_names or []:
         if name not in cfg.outputs:
             raise BpsflowError(f"--outputs: '{name}' is not an output of the config (expected "
                                f"some of {', '.join(sorted(cfg.outputs))})", source=cfg.source)
     settings = apply_overrides(settings_of(cfg),
-                               outputs=[o.strip() for o in outputs.split(",")] if outputs else None,
+                               outputs=output_names,
                                resolution=resolution, chains=chains, warmup=warmup,
                                samples=samples, runs=runs, source=cfg.source)
     _lock(cfg)
