@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from scipy import special, stats
 
-from bpsflow.calibration.emulator import SQRT12, GridEmulator
+from bpsflow.calibration.emulator import NORMAL_SCORES, GridEmulator
 from bpsflow.calibration.settings import BayesSettings
 
 _JITTER = 1e-8
@@ -141,6 +141,7 @@ class KohData:
     x_values: np.ndarray           # (B,)
     signal_variance: float
     t_scaled: np.ndarray           # (R, k_active) runs' t / ℓ_t
+    input_table: np.ndarray        # (k_active, G) emulator input t at each of NORMAL_SCORES
     inverse_lengthscales: np.ndarray  # (k_active,)
     log_base: np.ndarray           # (R,) log k_t over the screened-out parameters
     x_obs: np.ndarray              # (n, d_x) standardised variable inputs
@@ -177,7 +178,10 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
     active = np.asarray(active, dtype=int)
     screened = np.setdiff1d(np.arange(grid.t.shape[1]), active)
     lengthscales = grid.hyper.t_lengthscales
-    log_base = -0.5 * np.sum((grid.t[:, screened] / lengthscales[screened]) ** 2, axis=1)
+    # parameters not sampled sit at their prior median
+    centre = grid.inputs.centre
+    log_base = -0.5 * np.sum(((grid.t[:, screened] - centre[screened])
+                              / lengthscales[screened]) ** 2, axis=1)
     priors = {
         "log_discrepancy_std": (np.log(settings.discrepancy_std.median),
                                 settings.discrepancy_std.log_sd),
@@ -194,6 +198,7 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
                    inverse_d=grid.inverse_d, x_values=grid.x_values,
                    signal_variance=grid.hyper.signal_variance,
                    t_scaled=grid.t[:, active] / lengthscales[active],
+                   input_table=grid.inputs.table[active],
                    inverse_lengthscales=1.0 / lengthscales[active], log_base=log_base,
                    x_obs=x_obs, active=active, n_parameters=grid.t.shape[1],
                    ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing,
@@ -230,9 +235,8 @@ def _emulator_moments(z, d: dict, full: bool = True):
     ``z`` is the non-centred θ of the sampled parameters.
     """
     import jax.numpy as jnp
-    from jax.scipy.special import ndtr
 
-    t = (ndtr(z) - 0.5) * SQRT12 * d["inverse_lengthscales"]
+    t = emulator_inputs(z, d["input_table"]) * d["inverse_lengthscales"]
     log_w = d["log_base"] - 0.5 * jnp.sum((t[None, :] - d["t_scaled"]) ** 2, axis=1)
     v = d["t_basis"] @ jnp.exp(log_w)
     if not full:
@@ -244,6 +248,23 @@ def _emulator_moments(z, d: dict, full: bool = True):
     s2, mu = d["signal_variance"], d["x_values"]
     c = jnp.clip(s2 * mu - s2 * s2 * mu * mu * (d["inverse_d_t"] @ (v * v)), 0.0, None)
     return mean, (d["ux_obs"] * c) @ d["ux_obs"].T
+
+
+def emulator_inputs(z, table):
+    """Emulator inputs of normal scores ``z`` (k,): each row of ``table`` interpolated (JAX).
+
+    The same linear interpolation on :data:`NORMAL_SCORES` as
+    :meth:`ParameterInputs.from_normal`; scores beyond its ends keep the end values.
+    """
+    import jax.numpy as jnp
+
+    first, step = float(NORMAL_SCORES[0]), float(NORMAL_SCORES[1] - NORMAL_SCORES[0])
+    position = (jnp.clip(z, first, float(NORMAL_SCORES[-1])) - first) / step
+    index = jnp.clip(jnp.floor(position).astype(jnp.int32), 0, len(NORMAL_SCORES) - 2)
+    table = jnp.asarray(table)
+    rows = jnp.arange(table.shape[0])
+    low, high = table[rows, index], table[rows, index + 1]
+    return low + (position - index) * (high - low)
 
 
 def _discrepancy_kernel(log_lengthscale, d: dict, ard: bool):
@@ -419,7 +440,8 @@ def model_arrays(data: KohData) -> dict:
             "t_basis": np.ascontiguousarray(data.t_vectors.T),
             "inverse_d_t": np.ascontiguousarray(data.inverse_d.T),
             "x_values": data.x_values, "signal_variance": np.float64(data.signal_variance),
-            "t_scaled": data.t_scaled, "inverse_lengthscales": data.inverse_lengthscales,
+            "t_scaled": data.t_scaled, "input_table": data.input_table,
+            "inverse_lengthscales": data.inverse_lengthscales,
             "log_base": data.log_base, "x_obs": x, "x_sqdist": x_sqdist,
             "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1])),
             "extra_variance": np.zeros(len(data.y)) if data.extra_variance is None
@@ -868,7 +890,7 @@ def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray
     n_obs, n_target = len(obs_rows), len(target_rows)
     x = grid.x[rows]
     means, samples, deltas = [], [], []
-    t_all = (unit - 0.5) * SQRT12
+    t_all = grid.t_of_unit(unit)
     mean_all = grid.predict_mean(t_all)[:, rows]
     known = 0.0 if extra_factor is None else extra_factor[rows] @ extra_factor[rows].T
     for i in range(len(unit)):

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,6 +55,97 @@ _EIG_RTOL = 1e-12
 def standardise_unit(unit: np.ndarray) -> np.ndarray:
     """Prior-CDF values ``u`` in (0, 1) as emulator inputs ``(u - ½)·√12`` (unit variance)."""
     return (np.asarray(unit, dtype=float) - 0.5) * SQRT12
+
+
+# Normal scores at which each parameter's emulator input is tabulated: ±6 holds all but
+# 2e-9 of a prior; a step of 0.005 keeps linear interpolation within ~1e-6 of the map.
+NORMAL_SCORES = np.linspace(-6.0, 6.0, 2401)
+
+
+@dataclass(frozen=True)
+class ParameterInputs:
+    """How each calibration parameter enters the emulator: a monotone map of its normal score.
+
+    The sampler moves θ as normal scores ``z`` (``u = Φ(z)`` is the prior CDF
+    value); the emulator sees ``g_j(z)``, tabulated at :data:`NORMAL_SCORES`
+    and interpolated linearly, the same way in NumPy and in the sampler's JAX
+    code. ``kinds[j]`` says which map column ``j`` uses:
+
+    * ``value``: the parameter's value, standardised by its prior mean and
+      standard deviation. Simulated outputs are smooth in the physical value;
+      through the CDF a lognormal leakage area's effect bends sharply in its
+      upper tail, which a stationary kernel can follow only with short
+      length-scales everywhere;
+    * ``unit``: ``(u - ½)·√12`` (uniform with unit variance), for priors whose
+      quantile function has steps (discrete, empirical) and on request.
+    """
+
+    table: np.ndarray                     # (k, G) emulator input at each normal score
+    kinds: tuple[str, ...]
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Each parameter's emulator input at its prior median (``z = 0``), shape (k,)."""
+        return self.table[:, len(NORMAL_SCORES) // 2]
+
+    def from_normal(self, scores: np.ndarray) -> np.ndarray:
+        """Emulator inputs of normal scores ``(n, k)``."""
+        scores = np.atleast_2d(np.asarray(scores, dtype=float))
+        return np.column_stack([np.interp(scores[:, j], NORMAL_SCORES, self.table[j])
+                                for j in range(self.table.shape[0])])
+
+    def from_unit(self, unit: np.ndarray) -> np.ndarray:
+        """Emulator inputs of prior-CDF values ``(n, k)``."""
+        from scipy import special
+
+        unit = np.clip(np.atleast_2d(np.asarray(unit, dtype=float)), 1e-12, 1 - 1e-12)
+        return self.from_normal(special.ndtri(unit))
+
+    def column(self, j: int, unit: np.ndarray) -> np.ndarray:
+        """Emulator inputs of parameter ``j`` at prior-CDF values ``unit`` (1-D)."""
+        from scipy import special
+
+        unit = np.clip(np.asarray(unit, dtype=float), 1e-12, 1 - 1e-12)
+        return np.interp(special.ndtri(unit), NORMAL_SCORES, self.table[j])
+
+
+def unit_inputs(count: int) -> ParameterInputs:
+    """Every parameter as ``(u - ½)·√12`` of its prior CDF value."""
+    from scipy import special
+
+    row = standardise_unit(special.ndtr(NORMAL_SCORES))
+    return ParameterInputs(table=np.tile(row, (count, 1)), kinds=("unit",) * count)
+
+
+def value_inputs(to_values: Callable[[np.ndarray], np.ndarray], count: int) -> ParameterInputs:
+    """Every parameter as its value standardised by its prior's mean and standard deviation.
+
+    ``to_values`` maps prior-CDF values ``(n, count)`` to parameter values. A
+    parameter whose values do not rise strictly over the central normal scores
+    (a quantile function with steps) keeps the ``unit`` map.
+    """
+    from scipy import special, stats
+
+    unit = np.tile(special.ndtr(NORMAL_SCORES)[:, None], (1, count))
+    values = np.asarray(to_values(unit), dtype=float).T              # (count, G)
+    weights = stats.norm.pdf(NORMAL_SCORES)
+    weights = weights / weights.sum()
+    central = np.abs(NORMAL_SCORES) <= 3.0
+    fallback = unit_inputs(1).table[0]
+    table, kinds = [], []
+    for row in values:
+        steps = np.diff(row)
+        rising = np.all(np.isfinite(row)) and np.all(steps >= 0) and \
+            np.all(steps[central[1:]] > 0)
+        mean = float(weights @ row) if rising else 0.0
+        spread = float(np.sqrt(weights @ (row - mean) ** 2)) if rising else 0.0
+        if rising and spread > 0:
+            table.append((row - mean) / spread)
+            kinds.append("value")
+        else:
+            table.append(fallback)
+            kinds.append("unit")
+    return ParameterInputs(table=np.array(table), kinds=tuple(kinds))
 
 
 @dataclass(frozen=True)
@@ -205,14 +297,17 @@ class GridEmulator:
     x : ndarray, shape (M, d_x)
         Standardised variable inputs of the rows.
     t : ndarray, shape (R, k)
-        Standardised calibration inputs of the runs.
+        Emulator inputs of the runs' calibration parameters (see ``inputs``).
     hyper : Hyperparameters
+    input_map : ParameterInputs, optional
+        The map from prior-CDF values to ``t`` (default: :func:`unit_inputs`).
     """
 
     x: np.ndarray
     t: np.ndarray
     y: np.ndarray
     hyper: Hyperparameters
+    input_map: ParameterInputs | None = None   # how θ maps to ``t`` (default: unit inputs)
     t_vectors: np.ndarray = field(init=False, repr=False)     # U_t (R, A)
     t_values: np.ndarray = field(init=False, repr=False)      # λ (A,)
     x_vectors: np.ndarray = field(init=False, repr=False)     # U_x (M, B)
@@ -221,6 +316,8 @@ class GridEmulator:
     z: np.ndarray = field(init=False, repr=False)             # Z (A, B)
 
     def __post_init__(self) -> None:
+        if self.input_map is None:
+            self.input_map = unit_inputs(self.t.shape[1])
         h = self.hyper
         kt = squared_exponential(self.t, self.t, h.t_lengthscales)
         kx = squared_exponential(self.x, self.x, h.x_lengthscales)
@@ -242,6 +339,16 @@ class GridEmulator:
     def mean_weights(self) -> np.ndarray:
         """``s² Z ⊙ μ`` (A, B): the posterior mean is ``U_x (weightsᵀ v)``."""
         return self.hyper.signal_variance * self.z * self.x_values[None, :]
+
+    @property
+    def inputs(self) -> ParameterInputs:
+        """The map from prior-CDF values to ``t``."""
+        assert self.input_map is not None
+        return self.input_map
+
+    def t_of_unit(self, unit: np.ndarray) -> np.ndarray:
+        """Emulator inputs ``t`` of prior-CDF values ``(n, k)``."""
+        return self.inputs.from_unit(unit)
 
     def t_kernel(self, t_new: np.ndarray) -> np.ndarray:
         return squared_exponential(np.atleast_2d(t_new), self.t, self.hyper.t_lengthscales)
@@ -298,7 +405,8 @@ class Emulator:
 
 def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
                  unit: np.ndarray, points: int = 840, test_fraction: float = 0.1,
-                 restarts: int = 1, random_state: int = 0) -> Emulator:
+                 restarts: int = 1, random_state: int = 0,
+                 inputs: ParameterInputs | None = None) -> Emulator:
     """Fit and test the emulator on the simulations of every row.
 
     Parameters
@@ -315,12 +423,15 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
         (run, row) pairs for the MLE fit of the hyperparameters.
     test_fraction : float
         Share of the runs held out to test the emulator (0: no test).
+    inputs : ParameterInputs, optional
+        How the calibration parameters enter the emulator (default: :func:`unit_inputs`).
     """
     rng = np.random.default_rng(random_state)
+    inputs = inputs or unit_inputs(np.shape(unit)[1])
     scaling = make_scaling(x, row_outputs, simulated)
     xs = scaling.x(x)
     ys = scaling.y(simulated, row_outputs.to_numpy()).T            # (R, M)
-    ts = standardise_unit(unit)
+    ts = inputs.from_unit(unit)
     n_runs = len(ts)
     n_test = int(round(test_fraction * n_runs))
     order = rng.permutation(n_runs)
@@ -332,7 +443,7 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
                                 restarts=restarts, random_state=random_state)
     test = None
     if n_test:
-        trained = GridEmulator(xs, ts[train_runs], ys[train_runs], hyper)
+        trained = GridEmulator(xs, ts[train_runs], ys[train_runs], hyper, inputs)
         predicted = trained.predict_mean(ts[test_runs])
         outputs = row_outputs.to_numpy()
         per_output = {}
@@ -356,7 +467,7 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
                                 np.sqrt(np.mean((ys[test_runs] - predicted) ** 2))),
                             per_output=per_output, test_runs=test_runs, predicted=pred_units,
                             simulated=sim_units)
-    grid = GridEmulator(xs, ts, ys, hyper)
+    grid = GridEmulator(xs, ts, ys, hyper, inputs)
     fit_points = pd.DataFrame({"run": run_pick, "row": row_pick})
     return Emulator(scaling=scaling, hyper=hyper, grid=grid, test=test,
                     row_outputs=row_outputs.to_numpy(), fit_points=fit_points)
@@ -372,11 +483,11 @@ def parameter_effects(grid: GridEmulator, rows: np.ndarray, levels: int = 9, bas
     """
     rng = np.random.default_rng(random_state)
     base = grid.t[rng.choice(len(grid.t), min(bases, len(grid.t)), replace=False)]
-    sweep = standardise_unit(np.linspace(0.02, 0.98, levels))
+    sweep = np.linspace(0.02, 0.98, levels)
     effects = np.empty(grid.t.shape[1])
     for k in range(grid.t.shape[1]):
         points = np.repeat(base, levels, axis=0)
-        points[:, k] = np.tile(sweep, len(base))
+        points[:, k] = np.tile(grid.inputs.column(k, sweep), len(base))
         mean = grid.predict_mean(points)[:, rows].reshape(len(base), levels, -1)
         spread = mean.max(axis=1) - mean.min(axis=1)
         effects[k] = float(np.mean(np.sqrt(np.mean(spread ** 2, axis=1))))

@@ -152,6 +152,8 @@ def calibration_record(run: CalibrationRun) -> dict:
             "lengthscales": {**dict(zip(scaling.x_columns, map(float, em.hyper.x_lengthscales))),
                              **dict(zip([p.name for p in run.parameters],
                                         map(float, em.hyper.t_lengthscales)))},
+            "parameter_inputs": dict(zip([p.name for p in run.parameters],
+                                         em.grid.inputs.kinds)),
             "fit_points": int(len(em.fit_points)), "fit_seconds": em.hyper.fit_seconds,
             "fit_notes": list(em.hyper.notes),
             "runs": int(em.grid.t.shape[0]), "rows": int(em.grid.x.shape[0]),

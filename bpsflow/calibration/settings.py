@@ -76,9 +76,18 @@ class EmulatorSettings(_Strict):
     ``points`` (run, time) pairs are drawn from the training runs for the
     maximum-likelihood fit of the hyperparameters; ``test_fraction`` of the
     runs are held out to test the emulator (seed: 10 %).
+
+    ``inputs`` is how the calibration parameters enter the kernel: ``value``
+    (default), each parameter's value standardised by its prior mean and
+    standard deviation; ``unit``, its prior CDF value (uniform). Outputs are
+    smooth in the physical value; through the CDF a lognormal input's effect
+    bends sharply in its tail, which a stationary kernel follows only with
+    short length-scales everywhere. Priors with steps (discrete, empirical)
+    always enter as ``unit``.
     """
 
     points: int = Field(default=840, ge=20)
+    inputs: Literal["value", "unit"] = "value"
     test_fraction: float = Field(default=0.1, ge=0.0, lt=0.5)
     restarts: int = Field(default=0, ge=0)
     seed: int = 0

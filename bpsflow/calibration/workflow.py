@@ -30,7 +30,13 @@ from scipy import special
 from bpsflow.alignment import check_coverage
 from bpsflow.calibration import design as design_module
 from bpsflow.calibration.design import Paired
-from bpsflow.calibration.emulator import Emulator, fit_emulator, parameter_effects, standardise_unit
+from bpsflow.calibration.emulator import (
+    Emulator,
+    fit_emulator,
+    parameter_effects,
+    unit_inputs,
+    value_inputs,
+)
 from bpsflow.calibration.settings import CalibrationSettings, Scenario
 from bpsflow.config import Config, Parameter, window_config
 from bpsflow.errors import BpsflowError
@@ -204,10 +210,12 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
                   f"held-out {scenario.resolution} rows of {', '.join(scenario.outputs)}")
 
     em = settings.emulator
+    inputs = value_inputs(lambda unit: design_module.unit_to_values(unit, parameters),
+                          len(parameters)) if em.inputs == "value" else unit_inputs(len(parameters))
     emulator = fit_emulator(x, paired.rows["output"], paired.simulated,
                             design.unit[paired.instances], points=em.points,
                             test_fraction=em.test_fraction, restarts=em.restarts,
-                            random_state=em.seed)
+                            random_state=em.seed, inputs=inputs)
     timings["emulator_seconds"] = time.perf_counter() - started
     if len(emulator.fit_points) < em.points:
         console.print(f"[{scenario.name}] note: calibration.emulator.points is {em.points}, "
@@ -242,7 +250,7 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
                                        measured_source, scenario, settings, design.backend)
     else:
         def predict(unit: np.ndarray) -> np.ndarray:
-            mean = grid.predict_mean(standardise_unit(unit))[:, obs_rows]
+            mean = grid.predict_mean(grid.t_of_unit(unit))[:, obs_rows]
             return emulator.scaling.y_back(mean, outputs_obs)
     started = time.perf_counter()
     optimum = det.calibrate(predict, observed, outputs_obs, len(parameters), settings.deterministic)
