@@ -148,6 +148,23 @@ def test_value_inputs_emulate_a_lognormal_effect_better_than_unit_inputs():
     assert errors["value"] < 0.1 * errors["unit"]
 
 
+def test_holdout_error_factor_keeps_each_rows_error_and_the_leading_correlation():
+    """The correlated emulator error keeps few columns, each row's whole mean squared
+    hold-out error (on the diagonal), and 99 % of the errors' second moment."""
+    from bpsflow.calibration.workflow import holdout_error_factor
+
+    _, _, emulator = toy_emulator(k=2, runs=120, rows=30)
+    test = emulator.test
+    row_output = np.zeros(30, dtype=int)
+    errors = (test.simulated - test.predicted) / emulator.scaling.y_std[0]
+    moment = errors.T @ errors / len(errors)
+    factor, rest = holdout_error_factor(emulator, row_output, share=0.99)
+    assert factor.shape[1] < len(errors)
+    np.testing.assert_allclose(np.diag(factor @ factor.T) + rest, np.diag(moment), rtol=1e-9)
+    kept = np.sum((factor @ factor.T) ** 2) ** 0.5 / np.sum(moment ** 2) ** 0.5
+    assert kept > 0.98
+
+
 def test_hyperparameter_fit_escapes_the_short_length_scale_basin(monkeypatch):
     """On a real design where one start falls into the all-nugget basin, the fit does not."""
     frame = pd.read_csv(Path(__file__).parent / "data" / "emulator_short_basin.csv", comment="#")

@@ -298,7 +298,7 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
                         for o in emulator.scaling.outputs])
         extra = mse[row_output]
     elif bs.emulator_error == "correlated" and emulator.test is not None:
-        factor = holdout_error_factor(emulator, row_output)
+        factor, extra = holdout_error_factor(emulator, row_output)
     run.extra_variance = extra
     data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs,
                           None if extra is None else extra[run.obs_rows],
@@ -490,22 +490,37 @@ def checked_runs(folder: Path, window: Config, samples: pd.DataFrame) -> pd.Data
     return results
 
 
-def holdout_error_factor(emulator: Emulator, row_output: np.ndarray) -> np.ndarray:
-    """``F`` (rows × test runs) with ``F Fᵀ`` the emulator's hold-out error covariance.
+#: Share of the emulator's hold-out error second moment its correlated factor keeps as columns.
+HOLDOUT_FACTOR_SHARE = 0.99
 
-    Each held-out run's error at every row (standardised) is one column, scaled
-    by ``1/√runs``: ``F Fᵀ`` is the errors' empirical second moment, whose
-    diagonal is each row's mean squared error and whose off-diagonal keeps how
+
+def holdout_error_factor(emulator: Emulator, row_output: np.ndarray,
+                         share: float = HOLDOUT_FACTOR_SHARE) -> tuple[np.ndarray, np.ndarray]:
+    """``F`` (rows × r) and a per-row variance ``v`` with ``F Fᵀ + diag(v)`` the emulator's
+    hold-out error covariance.
+
+    Each held-out run's error at every row (standardised), scaled by
+    ``1/√runs``, is one column of the errors' empirical second moment: its
+    diagonal is each row's mean squared error and its off-diagonal keeps how
     the errors of one run move together over the rows. An emulator's error at
     a given θ is a smooth function of the variable inputs, nearly the same
     over hundreds of hourly rows; counted as independent per row it averages
-    away and θ absorbs it.
+    away and θ absorbs it. ``F`` keeps the leading singular directions that
+    hold ``share`` of the second moment (each column costs the likelihood one
+    more row in its Woodbury system); ``v`` puts the rest back on the
+    diagonal, so every row keeps its whole mean squared error.
     """
     test = emulator.test
     assert test is not None
     std = emulator.scaling.y_std[row_output]
     errors = (test.simulated - test.predicted) / std[None, :]        # (test runs, rows)
-    return errors.T / np.sqrt(len(errors))
+    full = errors.T / np.sqrt(len(errors))
+    vectors, values, _ = np.linalg.svd(full, full_matrices=False)
+    energy = np.cumsum(values ** 2) / max(float(np.sum(values ** 2)), 1e-300)
+    keep = min(int(np.searchsorted(energy, share)) + 1, len(values))
+    factor = vectors[:, :keep] * values[:keep]
+    rest = np.clip(np.sum(full * full, axis=1) - np.sum(factor * factor, axis=1), 0.0, None)
+    return factor, rest
 
 
 def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
