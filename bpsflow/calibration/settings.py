@@ -139,8 +139,10 @@ class BayesSettings(_Strict):
     runs, and without this the calibration parameters absorb the emulator's
     error and their posterior is too narrow. ``correlated`` adds the held-out
     runs' errors with their correlation between rows instead (covariance
-    ``F Fᵀ``, one column of ``F`` per held-out run): at a given θ the emulator
-    errs alike over many hourly rows, which per-row variances average away.
+    ``F Fᵀ + diag(v)``: the leading singular directions of the runs' errors,
+    holding 99 % of their second moment, and the rest of each row's squared
+    error on the diagonal): at a given θ the emulator errs alike over many
+    hourly rows, which per-row variances average away.
 
     Chains run ``parallel_chains`` at a time (default: all of them for up to
     30 observations, else one after another, each using every core).
