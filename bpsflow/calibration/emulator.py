@@ -96,17 +96,18 @@ class ParameterInputs:
 
     def from_unit(self, unit: np.ndarray) -> np.ndarray:
         """Emulator inputs of prior-CDF values ``(n, k)``."""
-        from scipy import special
-
-        unit = np.clip(np.atleast_2d(np.asarray(unit, dtype=float)), 1e-12, 1 - 1e-12)
-        return self.from_normal(special.ndtri(unit))
+        return self.from_normal(_normal_scores(np.atleast_2d(unit)))
 
     def column(self, j: int, unit: np.ndarray) -> np.ndarray:
         """Emulator inputs of parameter ``j`` at prior-CDF values ``unit`` (1-D)."""
-        from scipy import special
+        return np.interp(_normal_scores(unit), NORMAL_SCORES, self.table[j])
 
-        unit = np.clip(np.asarray(unit, dtype=float), 1e-12, 1 - 1e-12)
-        return np.interp(special.ndtri(unit), NORMAL_SCORES, self.table[j])
+
+def _normal_scores(unit) -> np.ndarray:
+    """``Φ⁻¹(u)`` of prior-CDF values, kept finite at 0 and 1."""
+    from scipy import special
+
+    return special.ndtri(np.clip(np.asarray(unit, dtype=float), 1e-12, 1 - 1e-12))
 
 
 def unit_inputs(count: int) -> ParameterInputs:
@@ -135,12 +136,9 @@ def value_inputs(to_values: Callable[[np.ndarray], np.ndarray], count: int) -> P
     table, kinds = [], []
     for row in values:
         steps = np.diff(row)
-        rising = np.all(np.isfinite(row)) and np.all(steps >= 0) and \
-            np.all(steps[central[1:]] > 0)
-        mean = float(weights @ row) if rising else 0.0
-        spread = float(np.sqrt(weights @ (row - mean) ** 2)) if rising else 0.0
-        if rising and spread > 0:
-            table.append((row - mean) / spread)
+        if np.all(np.isfinite(row)) and np.all(steps >= 0) and np.all(steps[central[1:]] > 0):
+            mean = float(weights @ row)
+            table.append((row - mean) / float(np.sqrt(weights @ (row - mean) ** 2)))
             kinds.append("value")
         else:
             table.append(fallback)

@@ -177,7 +177,7 @@ def measured_outputs(config: Config, measured: pd.DataFrame) -> list[str]:
     return [o for o in default_outputs(config) if o in measured.columns]
 
 
-#: An emulator length-scale (prior-CDF units) at or above this sits at its MLE bound (1e3).
+#: An emulator length-scale (emulator-input units) at or above this sits at its MLE bound (1e3).
 LENGTHSCALE_AT_BOUND = 999.0
 
 
