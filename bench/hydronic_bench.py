@@ -172,7 +172,8 @@ def posterior_runs(names: list[str], overrides: dict, measured_path: Path,
                    truth_path: Path | None = None):
     """Calibrate the demo's scenarios ``names`` on its design, posterior only (no re-runs).
 
-    ``overrides`` replace ``calibration.bayes`` settings; yields each scenario's run.
+    ``overrides`` replace ``calibration.bayes`` settings (``emulator.KEY``: a
+    ``calibration.emulator`` one); yields each scenario's run.
     """
     from bpsflow.calibration import bayes, workflow
     from bpsflow.config import load_config
@@ -180,7 +181,10 @@ def posterior_runs(names: list[str], overrides: dict, measured_path: Path,
 
     config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
     settings = workflow.settings_of(config)
-    settings.bayes = settings.bayes.model_copy(update=overrides)
+    emulator = {k.split(".", 1)[1]: v for k, v in overrides.items() if k.startswith("emulator.")}
+    settings.emulator = settings.emulator.model_copy(update=emulator)
+    settings.bayes = settings.bayes.model_copy(
+        update={k: v for k, v in overrides.items() if not k.startswith("emulator.")})
     bayes.configure_jax(settings.bayes.chains)
     measured = read_measured(measured_path, config).frame
     design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"

@@ -124,6 +124,80 @@ def test_value_inputs_are_the_standardised_value_in_numpy_and_in_the_sampler():
     np.testing.assert_allclose(sampler, inputs.from_normal(scores[None, :])[0], atol=1e-12)
 
 
+def two_output_problem(runs: int = 60, hours: int = 12, seed: int = 0):
+    """Two outputs on interleaved rows: one bends fast in θ₁ and ignores θ₂, the other is
+    linear in θ₂ and ignores θ₁ (what each wants of θ's length-scales is opposite)."""
+    hour = np.repeat(np.linspace(0.0, 1.0, hours), 2)
+    output = np.tile(["fast", "slow"], hours)
+    unit = latin_hypercube_unit(runs, 2, seed)
+    fast = np.sin(9.0 * unit[:, 0])[None, :] * (1.0 + hour[:, None])
+    slow = 0.3 * unit[:, 1][None, :] + 0.2 * hour[:, None]
+    simulated = np.where((output == "fast")[:, None], fast, slow)
+    frame = pd.DataFrame({"hour": hour, "is_fast": (output == "fast").astype(float)})
+    return frame, pd.Series(output), simulated, unit
+
+
+def test_per_output_emulator_learns_each_outputs_own_lengthscales():
+    """Each output's block has its own length-scales: the output that ignores a parameter
+    puts it far out, the one that bends in it short; the shared GP must compromise, and
+    predicts the slow output's held-out runs worse."""
+    frame, output, simulated, unit = two_output_problem()
+    own = fit_emulator(frame, output, simulated, unit, points=400, test_fraction=0.2)
+    shared = fit_emulator(frame, output, simulated, unit, points=400, test_fraction=0.2,
+                          per_output=False)
+    assert own.grid.names == ("fast", "slow") and shared.grid.names == ("all",)
+    fast, slow = own.hypers
+    assert fast.t_lengthscales[0] < 1.0 < 20 * fast.t_lengthscales[0] < fast.t_lengthscales[1]
+    assert slow.t_lengthscales[1] < slow.t_lengthscales[0] / 5
+    # the indicator column is constant within a block: it has no length-scale there
+    assert [len(h.x_lengthscales) for h in own.hypers] == [1, 1]
+    assert own.test.per_output["slow"]["mse_standardised"] \
+        < shared.test.per_output["slow"]["mse_standardised"]
+    # the blocks' mean and covariance sit at their own rows; across blocks no covariance
+    t = own.grid.t_of_unit(np.array([[0.3, 0.7]]))
+    cov = own.grid.predict_cov(t[0])
+    rows_fast, rows_slow = own.grid.rows
+    assert np.all(cov[np.ix_(rows_fast, rows_slow)] == 0.0)
+    np.testing.assert_allclose(own.grid.predict_mean(t)[0, rows_slow],
+                               own.grid.blocks[1].predict_mean(t)[0])
+
+
+@pytest.mark.parametrize("likelihood", ["exact", "lowrank"])
+def test_per_output_emulator_likelihood_is_the_block_diagonal_gaussian(likelihood):
+    """With one emulator block per output, observations listed in an order that mixes the
+    blocks, the model's log density equals a hand-built Gaussian whose emulator covariance
+    is the NumPy blocks' (block-diagonal; its diagonal for the low-rank likelihood)."""
+    from numpyro.infer.util import log_density
+
+    frame, output, simulated, unit = two_output_problem(runs=40, hours=8)
+    emulator = fit_emulator(frame, output, simulated, unit, points=300, test_fraction=0.0)
+    obs_rows = np.array([5, 0, 3, 2, 9, 12, 7, 4, 1, 14, 11])
+    y = np.random.default_rng(6).normal(size=len(obs_rows))
+    settings = BayesSettings(likelihood=likelihood, inducing_points=len(obs_rows), ard=True)
+    data = bayes.koh_data(emulator.grid, obs_rows, y, np.arange(2), settings)
+    assert len(data.blocks) == 2
+    point = {"z": np.array([0.4, -0.9]), "log_discrepancy_std": np.log(0.2),
+             "log_discrepancy_lengthscale": np.array([-0.3, 0.2]),
+             "log_noise_std": np.log(0.1)}
+    model = bayes.make_model(True, data.priors, likelihood == "lowrank")
+    value, _ = log_density(model, (bayes.model_arrays(data),), {}, point)
+    t = emulator.grid.inputs.from_normal(point["z"][None, :])
+    mean = emulator.grid.predict_mean(t)[0, obs_rows]
+    cov = emulator.grid.predict_cov(t[0])[np.ix_(obs_rows, obs_rows)]
+    if likelihood == "lowrank":
+        cov = np.diag(np.diag(cov))
+    xs = emulator.grid.x[obs_rows] / np.exp([-0.3, 0.2])
+    d2 = ((xs[:, None, :] - xs[None, :, :]) ** 2).sum(-1)
+    cov = cov + 0.2 ** 2 * np.exp(-0.5 * d2) + np.eye(len(y)) * (0.1 ** 2 + 1e-8)
+    expected = stats.multivariate_normal(mean, cov).logpdf(y)
+    priors = data.priors
+    expected += stats.norm(0, 1).logpdf(point["z"]).sum()
+    expected += stats.norm(*priors["log_discrepancy_std"]).logpdf(np.log(0.2))
+    expected += stats.norm(*priors["log_discrepancy_lengthscale"]).logpdf([-0.3, 0.2]).sum()
+    expected += stats.norm(*priors["log_noise_std"]).logpdf(np.log(0.1))
+    assert float(value) == pytest.approx(expected, rel=1e-4)
+
+
 def test_value_inputs_emulate_a_lognormal_effect_better_than_unit_inputs():
     """An output linear in a lognormal input's value bends sharply in the input's prior CDF;
     emulated on the value it is predicted an order of magnitude better on held-out runs."""

@@ -9,7 +9,7 @@ likelihood of the simulations — a constant — times that of the observations
     y | y_sim, θ, φ_δ ~ N( m(θ),  C_η(θ) + σ_δ² K_δ(x; ℓ_δ) + (σ_ε² + v_em) I ),
 
 with ``m`` and ``C_η`` the emulator's conditional mean and covariance at
-``(x_obs, θ)`` (:class:`bpsflow.calibration.emulator.GridEmulator`: the
+``(x_obs, θ)`` (:class:`bpsflow.calibration.emulator.BlockEmulator`: the
 simulator block is factorised once; each step costs an ``n_obs × n_obs``
 Cholesky) and ``v_em`` the emulator's squared error on held-out runs (the
 GP's own variance ``C_η`` understates it by orders of magnitude). The
@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from scipy import special, stats
 
-from bpsflow.calibration.emulator import NORMAL_SCORES, GridEmulator
+from bpsflow.calibration.emulator import NORMAL_SCORES, BlockEmulator
 from bpsflow.calibration.settings import BayesSettings
 
 _JITTER = 1e-8
@@ -126,24 +126,35 @@ def enable_compilation_cache() -> Path | None:
 
 
 @dataclass
-class KohData:
-    """Everything the likelihood needs, as arrays (standardised units).
+class EmulatorBlock:
+    """One emulator block's arrays at the observations it holds (standardised units)."""
 
-    ``active`` lists the sampled calibration parameters (indices into θ);
-    the others sit at their prior median in the emulator.
-    """
-
-    y: np.ndarray                  # (n,) standardised observations
-    ux_obs: np.ndarray             # (n, B) rows of U_x at the observations
+    ux_obs: np.ndarray             # (n_g, B) rows of U_x at the block's observations
     mean_weights: np.ndarray       # (A, B)
     t_vectors: np.ndarray          # (R, A)
     inverse_d: np.ndarray          # (A, B)
     x_values: np.ndarray           # (B,)
     signal_variance: float
     t_scaled: np.ndarray           # (R, k_active) runs' t / ℓ_t
-    input_table: np.ndarray        # (k_active, G) emulator input t at each of NORMAL_SCORES
     inverse_lengthscales: np.ndarray  # (k_active,)
     log_base: np.ndarray           # (R,) log k_t over the screened-out parameters
+
+
+@dataclass
+class KohData:
+    """Everything the likelihood needs, as arrays (standardised units).
+
+    ``active`` lists the sampled calibration parameters (indices into θ);
+    the others sit at their prior median in the emulator. The emulator's
+    moments come block by block (:class:`~bpsflow.calibration.emulator.BlockEmulator`):
+    ``blocks[g]`` holds the observations ``np.flatnonzero(obs_block == g)``, and
+    ``unblock`` puts the blocks' concatenated values back in observation order.
+    """
+
+    y: np.ndarray                  # (n,) standardised observations
+    blocks: tuple[EmulatorBlock, ...]
+    unblock: np.ndarray            # (n,) observation i's position in the blocks' concatenation
+    input_table: np.ndarray        # (k_active, G) emulator input t at each of NORMAL_SCORES
     x_obs: np.ndarray              # (n, d_x) standardised variable inputs
     active: np.ndarray             # (k_active,) indices of sampled parameters
     n_parameters: int
@@ -161,7 +172,7 @@ class KohData:
     n_discrepancy: int = 1                    # how many σ_δ: 1 shared, else one per output
 
 
-def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
+def koh_data(grid: BlockEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np.ndarray,
              settings: BayesSettings, extra_variance: np.ndarray | None = None,
              obs_outputs: np.ndarray | None = None,
              extra_factor: np.ndarray | None = None) -> KohData:
@@ -177,11 +188,22 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
     """
     active = np.asarray(active, dtype=int)
     screened = np.setdiff1d(np.arange(grid.t.shape[1]), active)
-    lengthscales = grid.hyper.t_lengthscales
     # parameters not sampled sit at their prior median
     centre = grid.inputs.centre
-    log_base = -0.5 * np.sum(((grid.t[:, screened] - centre[screened])
-                              / lengthscales[screened]) ** 2, axis=1)
+    obs_block, obs_position = grid.block_of(obs_rows)
+    blocks = []
+    for g, block in enumerate(grid.blocks):
+        lengthscales = block.hyper.t_lengthscales
+        log_base = -0.5 * np.sum(((block.t[:, screened] - centre[screened])
+                                  / lengthscales[screened]) ** 2, axis=1)
+        blocks.append(EmulatorBlock(
+            ux_obs=block.x_vectors[obs_position[obs_block == g]],
+            mean_weights=block.mean_weights, t_vectors=block.t_vectors,
+            inverse_d=block.inverse_d, x_values=block.x_values,
+            signal_variance=block.hyper.signal_variance,
+            t_scaled=block.t[:, active] / lengthscales[active],
+            inverse_lengthscales=1.0 / lengthscales[active], log_base=log_base))
+    unblock = np.argsort(np.argsort(obs_block, kind="stable"), kind="stable")
     priors = {
         "log_discrepancy_std": (np.log(settings.discrepancy_std.median),
                                 settings.discrepancy_std.log_sd),
@@ -193,13 +215,8 @@ def koh_data(grid: GridEmulator, obs_rows: np.ndarray, y: np.ndarray, active: np
         settings.likelihood == "auto" and len(obs_rows) > settings.exact_max_observations)
     x_obs = grid.x[obs_rows]
     inducing = inducing_inputs(x_obs, settings.inducing_points, settings.seed) if lowrank else None
-    return KohData(y=np.asarray(y, float), ux_obs=grid.x_vectors[obs_rows],
-                   mean_weights=grid.mean_weights, t_vectors=grid.t_vectors,
-                   inverse_d=grid.inverse_d, x_values=grid.x_values,
-                   signal_variance=grid.hyper.signal_variance,
-                   t_scaled=grid.t[:, active] / lengthscales[active],
+    return KohData(y=np.asarray(y, float), blocks=tuple(blocks), unblock=unblock,
                    input_table=grid.inputs.table[active],
-                   inverse_lengthscales=1.0 / lengthscales[active], log_base=log_base,
                    x_obs=x_obs, active=active, n_parameters=grid.t.shape[1],
                    ard=settings.ard, priors=priors, lowrank=lowrank, x_inducing=inducing,
                    extra_variance=None if extra_variance is None
@@ -232,22 +249,37 @@ def inducing_inputs(x: np.ndarray, count: int, random_state: int) -> np.ndarray:
 def _emulator_moments(z, d: dict, full: bool = True):
     """Emulator mean and covariance (``full``) or variances at the observations (JAX).
 
-    ``z`` is the non-centred θ of the sampled parameters.
+    ``z`` is the non-centred θ of the sampled parameters. Each block gives
+    its observations' moments; blocks are uncorrelated, so the covariance is
+    block-diagonal.
     """
     import jax.numpy as jnp
+    from jax.scipy.linalg import block_diag
 
-    t = emulator_inputs(z, d["input_table"]) * d["inverse_lengthscales"]
-    log_w = d["log_base"] - 0.5 * jnp.sum((t[None, :] - d["t_scaled"]) ** 2, axis=1)
-    v = d["t_basis"] @ jnp.exp(log_w)
+    t = emulator_inputs(z, d["input_table"])
+    means, moments = [], []
+    for b in d["blocks"]:
+        scaled = t * b["inverse_lengthscales"]
+        log_w = b["log_base"] - 0.5 * jnp.sum((scaled[None, :] - b["t_scaled"]) ** 2, axis=1)
+        v = b["t_basis"] @ jnp.exp(log_w)
+        if not full:
+            # the x-side projections are folded into (n, A) matrices once (model_arrays):
+            # two matrix-vector products per step instead of four, on the sampler's hot path
+            means.append(b["obs_mean_weights"] @ v)
+            moments.append(jnp.clip(b["obs_prior_variance"] - b["obs_inverse_d"] @ (v * v),
+                                    0.0, None))
+            continue
+        means.append(b["ux_obs"] @ (b["mean_weights_t"] @ v))
+        s2, mu = b["signal_variance"], b["x_values"]
+        c = jnp.clip(s2 * mu - s2 * s2 * mu * mu * (b["inverse_d_t"] @ (v * v)), 0.0, None)
+        moments.append((b["ux_obs"] * c) @ b["ux_obs"].T)
+    if len(means) == 1:
+        return means[0], moments[0]
+    unblock = d["unblock"]
+    mean = jnp.concatenate(means)[unblock]
     if not full:
-        # the x-side projections are folded into (n, A) matrices once (model_arrays): two
-        # matrix-vector products per step instead of four, on the sampler's hot path
-        variance = d["obs_prior_variance"] - d["obs_inverse_d"] @ (v * v)
-        return d["obs_mean_weights"] @ v, jnp.clip(variance, 0.0, None)
-    mean = d["ux_obs"] @ (d["mean_weights_t"] @ v)
-    s2, mu = d["signal_variance"], d["x_values"]
-    c = jnp.clip(s2 * mu - s2 * s2 * mu * mu * (d["inverse_d_t"] @ (v * v)), 0.0, None)
-    return mean, (d["ux_obs"] * c) @ d["ux_obs"].T
+        return mean, jnp.concatenate(moments)[unblock]
+    return mean, block_diag(*moments)[unblock][:, unblock]
 
 
 def emulator_inputs(z, table):
@@ -389,7 +421,7 @@ def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool 
         import numpyro
         import numpyro.distributions as dist
 
-        k = d["t_scaled"].shape[1]
+        k = d["input_table"].shape[0]
         z = numpyro.sample("z", dist.Normal(0.0, 1.0).expand([k]).to_event(1))
         m, s = priors["log_discrepancy_std"]
         if n_discrepancy == 1:
@@ -431,18 +463,10 @@ def model_arrays(data: KohData) -> dict:
     """The JAX-side arrays of :class:`KohData` (pairwise distances precomputed)."""
     x = data.x_obs
     sq = np.sum(x * x, axis=1)
-    ux_squared = data.ux_obs * data.ux_obs
-    s2 = data.signal_variance
     x_sqdist = np.maximum(sq[:, None] + sq[None, :] - 2.0 * x @ x.T, 0.0)
-    # transposed copies, contiguous: XLA's CPU matrix-vector products are slow on strided views
-    return {"y": data.y, "ux_obs": data.ux_obs,
-            "mean_weights_t": np.ascontiguousarray(data.mean_weights.T),
-            "t_basis": np.ascontiguousarray(data.t_vectors.T),
-            "inverse_d_t": np.ascontiguousarray(data.inverse_d.T),
-            "x_values": data.x_values, "signal_variance": np.float64(data.signal_variance),
-            "t_scaled": data.t_scaled, "input_table": data.input_table,
-            "inverse_lengthscales": data.inverse_lengthscales,
-            "log_base": data.log_base, "x_obs": x, "x_sqdist": x_sqdist,
+    return {"y": data.y, "blocks": [_block_arrays(block) for block in data.blocks],
+            "unblock": data.unblock, "input_table": data.input_table,
+            "x_obs": x, "x_sqdist": x_sqdist,
             "x_inducing": data.x_inducing if data.lowrank else np.zeros((1, x.shape[1])),
             "extra_variance": np.zeros(len(data.y)) if data.extra_variance is None
             else data.extra_variance,
@@ -452,13 +476,27 @@ def model_arrays(data: KohData) -> dict:
             "noise_index": np.zeros(len(data.y), dtype=int) if data.noise_index is None
             else data.noise_index,
             "output_index": np.zeros(len(data.y), dtype=int) if data.output_index is None
-            else data.output_index,
+            else data.output_index}
+
+
+def _block_arrays(block: EmulatorBlock) -> dict:
+    """One emulator block's JAX-side arrays."""
+    ux_squared = block.ux_obs * block.ux_obs
+    s2 = block.signal_variance
+    # transposed copies, contiguous: XLA's CPU matrix-vector products are slow on strided views
+    return {"ux_obs": block.ux_obs,
+            "mean_weights_t": np.ascontiguousarray(block.mean_weights.T),
+            "t_basis": np.ascontiguousarray(block.t_vectors.T),
+            "inverse_d_t": np.ascontiguousarray(block.inverse_d.T),
+            "x_values": block.x_values, "signal_variance": np.float64(s2),
+            "t_scaled": block.t_scaled, "inverse_lengthscales": block.inverse_lengthscales,
+            "log_base": block.log_base,
             # the emulator's mean and variances at the observations as products with the
             # θ-side vector only (the low-rank likelihood's variances: the diagonal of C_η)
-            "obs_mean_weights": np.ascontiguousarray(data.ux_obs @ data.mean_weights.T),
-            "obs_prior_variance": ux_squared @ (s2 * data.x_values),
+            "obs_mean_weights": np.ascontiguousarray(block.ux_obs @ block.mean_weights.T),
+            "obs_prior_variance": ux_squared @ (s2 * block.x_values),
             "obs_inverse_d": np.ascontiguousarray(
-                (ux_squared * (s2 * data.x_values) ** 2) @ data.inverse_d.T)}
+                (ux_squared * (s2 * block.x_values) ** 2) @ block.inverse_d.T)}
 
 
 # ---------------------------------------------------------------------------
@@ -862,7 +900,7 @@ class Predictive:
     discrepancy: np.ndarray    # (draws, n_target)
 
 
-def predictive(grid: GridEmulator, obs_rows: np.ndarray, target_rows: np.ndarray,
+def predictive(grid: BlockEmulator, obs_rows: np.ndarray, target_rows: np.ndarray,
                y_obs: np.ndarray, unit: np.ndarray, log_sd_delta: np.ndarray,
                log_lengthscale: np.ndarray, log_sd_eps: np.ndarray, ard: bool,
                x_inducing: np.ndarray | None = None, extra_variance: np.ndarray | None = None,

@@ -31,6 +31,11 @@ exact GP conditional on all ``R·M`` simulated values (the joint likelihood of
 seed eq. 22 factorised once into the simulator block and the field data given
 it).
 
+**Blocks**: with ``calibration.emulator.hyperparameters: per_output`` (the
+default) each output is its own GP with its own hyperparameters and grid
+(:class:`BlockEmulator`); with ``shared`` one GP covers every row, the output
+type entering as a variable input.
+
 **Test**: the emulator conditioned on the training runs predicts the
 ``test_fraction`` held-out runs at every row; R² and RMSE are reported
 (seed Figure 4.6).
@@ -366,6 +371,94 @@ class GridEmulator:
 
 
 @dataclass
+class BlockEmulator:
+    """Independent grid emulators of disjoint row blocks, on the same design runs.
+
+    Each block is a :class:`GridEmulator` over its own rows with its own
+    hyperparameters; with ``calibration.emulator.hyperparameters: per_output``
+    a block is one output. One output's response can want short length-scales
+    on a calibration input (heating on a leakage area) where another's wants
+    long ones on everything but its loads (electricity); a shared kernel has
+    to compromise, and the MLE can then park an input that plainly acts at
+    its length-scale bound. Rows of different blocks are uncorrelated a
+    priori, so the emulator's mean is each block's and its covariance is
+    block-diagonal.
+
+    Attributes
+    ----------
+    x : ndarray, shape (M, d_x)
+        Standardised variable inputs of every row.
+    blocks : tuple of GridEmulator
+        Each block's emulator; its ``x`` holds the block's rows and the
+        columns that vary over them.
+    rows : tuple of ndarray
+        Each block's rows, as indices into ``x``.
+    columns : tuple of ndarray
+        Each block's variable-input columns, as indices into ``x``'s columns.
+    names : tuple of str
+        Each block's name (its output, or ``all``).
+    """
+
+    x: np.ndarray
+    blocks: tuple[GridEmulator, ...]
+    rows: tuple[np.ndarray, ...]
+    columns: tuple[np.ndarray, ...]
+    names: tuple[str, ...]
+
+    @property
+    def t(self) -> np.ndarray:
+        """Emulator inputs of the design runs, shape (R, k) (shared by the blocks)."""
+        return self.blocks[0].t
+
+    @property
+    def inputs(self) -> ParameterInputs:
+        """The map from prior-CDF values to ``t``."""
+        return self.blocks[0].inputs
+
+    @property
+    def hypers(self) -> tuple[Hyperparameters, ...]:
+        return tuple(block.hyper for block in self.blocks)
+
+    def t_of_unit(self, unit: np.ndarray) -> np.ndarray:
+        """Emulator inputs ``t`` of prior-CDF values ``(n, k)``."""
+        return self.inputs.from_unit(unit)
+
+    def block_of(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each of ``rows``' block and its position within the block."""
+        block = np.empty(len(self.x), dtype=int)
+        position = np.empty(len(self.x), dtype=int)
+        for g, mine in enumerate(self.rows):
+            block[mine], position[mine] = g, np.arange(len(mine))
+        rows = np.asarray(rows, dtype=int)
+        return block[rows], position[rows]
+
+    def predict_mean(self, t_new: np.ndarray) -> np.ndarray:
+        """Posterior mean at every row for each ``t_new`` (B, k) -> (B, M), standardised."""
+        t_new = np.atleast_2d(t_new)
+        mean = np.empty((len(t_new), len(self.x)))
+        for block, mine in zip(self.blocks, self.rows):
+            mean[:, mine] = block.predict_mean(t_new)
+        return mean
+
+    def predict_cov(self, t_new: np.ndarray) -> np.ndarray:
+        """Posterior covariance over the rows at one ``t_new`` (k,) -> (M, M), block-diagonal."""
+        cov = np.zeros((len(self.x), len(self.x)))
+        for block, mine in zip(self.blocks, self.rows):
+            cov[np.ix_(mine, mine)] = block.predict_cov(t_new)
+        return cov
+
+
+def block_emulator(x: np.ndarray, t: np.ndarray, y: np.ndarray,
+                   hypers: tuple[Hyperparameters, ...], rows: tuple[np.ndarray, ...],
+                   columns: tuple[np.ndarray, ...], names: tuple[str, ...],
+                   inputs: ParameterInputs | None = None) -> BlockEmulator:
+    """Condition each block's emulator on the runs ``t`` (R, k) and values ``y`` (R, M)."""
+    blocks = tuple(GridEmulator(x[np.ix_(mine, cols)], t, y[:, mine], hyper, inputs)
+                   for hyper, mine, cols in zip(hypers, rows, columns))
+    return BlockEmulator(x=x, blocks=blocks, rows=rows, columns=columns, names=names)
+
+
+@dataclass
 class EmulatorTest:
     """Hold-out test of the emulator on whole runs (seed Figure 4.6).
 
@@ -394,17 +487,21 @@ class Emulator:
     """The fitted emulator: scaling, hyperparameters, the grid conditional and its test."""
 
     scaling: Scaling
-    hyper: Hyperparameters
-    grid: GridEmulator
+    grid: BlockEmulator
     test: EmulatorTest | None
     row_outputs: np.ndarray      # output name of each row (M,)
-    fit_points: pd.DataFrame     # the (run, row) pairs used for the MLE fit
+    fit_points: pd.DataFrame     # the (block, run, row) triples used for the MLE fits
+
+    @property
+    def hypers(self) -> tuple[Hyperparameters, ...]:
+        """Each block's hyperparameters."""
+        return self.grid.hypers
 
 
 def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
                  unit: np.ndarray, points: int = 840, test_fraction: float = 0.1,
                  restarts: int = 1, random_state: int = 0,
-                 inputs: ParameterInputs | None = None) -> Emulator:
+                 inputs: ParameterInputs | None = None, per_output: bool = True) -> Emulator:
     """Fit and test the emulator on the simulations of every row.
 
     Parameters
@@ -418,38 +515,54 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
     unit : ndarray, shape (R, k)
         Prior-CDF values of the runs' calibration parameters.
     points : int
-        (run, row) pairs for the MLE fit of the hyperparameters.
+        (run, row) pairs for the MLE fit of each block's hyperparameters.
     test_fraction : float
         Share of the runs held out to test the emulator (0: no test).
     inputs : ParameterInputs, optional
         How the calibration parameters enter the emulator (default: :func:`unit_inputs`).
+    per_output : bool
+        One block, with its own hyperparameters, per output (see
+        :class:`BlockEmulator`); else one block over every row, the output
+        type entering as a variable input.
     """
     rng = np.random.default_rng(random_state)
     inputs = inputs or unit_inputs(np.shape(unit)[1])
     scaling = make_scaling(x, row_outputs, simulated)
     xs = scaling.x(x)
-    ys = scaling.y(simulated, row_outputs.to_numpy()).T            # (R, M)
+    outputs = row_outputs.to_numpy()
+    ys = scaling.y(simulated, outputs).T            # (R, M)
     ts = inputs.from_unit(unit)
     n_runs = len(ts)
     n_test = int(round(test_fraction * n_runs))
     order = rng.permutation(n_runs)
     test_runs, train_runs = np.sort(order[:n_test]), np.sort(order[n_test:])
-    n_points = min(points, len(train_runs) * len(xs))
-    flat = rng.choice(len(train_runs) * len(xs), n_points, replace=False)
-    run_pick, row_pick = train_runs[flat // len(xs)], flat % len(xs)
-    hyper = fit_hyperparameters(xs[row_pick], ts[run_pick], ys[run_pick, row_pick],
-                                restarts=restarts, random_state=random_state)
+    if per_output:
+        names = scaling.outputs
+        rows = tuple(np.flatnonzero(outputs == o) for o in names)
+    else:
+        names, rows = ("all",), (np.arange(len(xs)),)
+    # a column constant over a block's rows (its output's indicator) has no length-scale
+    columns = tuple(np.flatnonzero(np.ptp(xs[mine], axis=0) > 1e-12) for mine in rows)
+    hypers, picks = [], []
+    for g, (mine, cols) in enumerate(zip(rows, columns)):
+        n_points = min(points, len(train_runs) * len(mine))
+        flat = rng.choice(len(train_runs) * len(mine), n_points, replace=False)
+        run_pick, row_pick = train_runs[flat // len(mine)], mine[flat % len(mine)]
+        hypers.append(fit_hyperparameters(xs[np.ix_(row_pick, cols)], ts[run_pick],
+                                          ys[run_pick, row_pick], restarts=restarts,
+                                          random_state=random_state))
+        picks.append(pd.DataFrame({"block": names[g], "run": run_pick, "row": row_pick}))
     test = None
     if n_test:
-        trained = GridEmulator(xs, ts[train_runs], ys[train_runs], hyper, inputs)
+        trained = block_emulator(xs, ts[train_runs], ys[train_runs], tuple(hypers), rows,
+                                 columns, names, inputs)
         predicted = trained.predict_mean(ts[test_runs])
-        outputs = row_outputs.to_numpy()
-        per_output = {}
+        scores = {}
         pred_units = scaling.y_back(predicted, outputs)
         sim_units = simulated[:, test_runs].T
         for o in scaling.outputs:
             mine = outputs == o
-            per_output[o] = {
+            scores[o] = {
                 "r2": r_squared(sim_units[:, mine], pred_units[:, mine]),
                 "rmse": float(np.sqrt(np.mean((sim_units[:, mine] - pred_units[:, mine]) ** 2))),
                 # R² of the runs' departures from the row mean: how well the
@@ -463,15 +576,14 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
         test = EmulatorTest(r2=r_squared(ys[test_runs], predicted),
                             rmse_standardised=float(
                                 np.sqrt(np.mean((ys[test_runs] - predicted) ** 2))),
-                            per_output=per_output, test_runs=test_runs, predicted=pred_units,
+                            per_output=scores, test_runs=test_runs, predicted=pred_units,
                             simulated=sim_units)
-    grid = GridEmulator(xs, ts, ys, hyper, inputs)
-    fit_points = pd.DataFrame({"run": run_pick, "row": row_pick})
-    return Emulator(scaling=scaling, hyper=hyper, grid=grid, test=test,
-                    row_outputs=row_outputs.to_numpy(), fit_points=fit_points)
+    grid = block_emulator(xs, ts, ys, tuple(hypers), rows, columns, names, inputs)
+    return Emulator(scaling=scaling, grid=grid, test=test, row_outputs=outputs,
+                    fit_points=pd.concat(picks, ignore_index=True))
 
 
-def parameter_effects(grid: GridEmulator, rows: np.ndarray, levels: int = 9, bases: int = 64,
+def parameter_effects(grid: BlockEmulator, rows: np.ndarray, levels: int = 9, bases: int = 64,
                       random_state: int = 0) -> np.ndarray:
     """Largest main effect of each calibration parameter on the emulator mean (standardised).
 

@@ -27,6 +27,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from bpsflow.calibration.design import unit_to_values
+from bpsflow.calibration.emulator import Hyperparameters
 from bpsflow.calibration.workflow import CalibrationRun
 from bpsflow.files import inside, save_figure, write_csv, write_json, write_parquet
 
@@ -81,7 +82,9 @@ def parameter_table(run: CalibrationRun) -> list[dict]:
                            "width90": float(q95 - q05)},
                  "sampled": bool(j in set(run.active.tolist())),
                  "emulator_effect": float(run.effects[j]),
-                 "emulator_lengthscale": float(run.emulator.hyper.t_lengthscales[j]),
+                 # the shortest over the emulator's blocks: where the parameter acts most
+                 "emulator_lengthscale": float(min(h.t_lengthscales[j]
+                                                   for h in run.emulator.hypers)),
                  "deterministic": float(optimum[j]),
                  "deterministic_at_bound": _at_bound(float(optimum_unit[j]))}
         if draws is not None:
@@ -129,6 +132,16 @@ def diagnostics(run: CalibrationRun) -> dict | None:
     }
 
 
+def _block_record(hyper: Hyperparameters, x_columns: list[str], parameters: list[str],
+                  points: int) -> dict:
+    """One emulator block's hyperparameters (seed eq. 20) and how they were fitted."""
+    return {"signal_variance": hyper.signal_variance, "nugget": hyper.nugget,
+            "lengthscales": {**dict(zip(x_columns, map(float, hyper.x_lengthscales))),
+                             **dict(zip(parameters, map(float, hyper.t_lengthscales)))},
+            "fit_points": points, "fit_seconds": hyper.fit_seconds,
+            "fit_notes": list(hyper.notes)}
+
+
 def calibration_record(run: CalibrationRun) -> dict:
     """The content of ``calibration.json``."""
     em = run.emulator
@@ -148,14 +161,15 @@ def calibration_record(run: CalibrationRun) -> dict:
         "parameters": parameter_table(run),
         "emulator": {
             "kernel": "ARD squared exponential + nugget (seed eq. 20), MLE (scikit-learn)",
-            "signal_variance": em.hyper.signal_variance, "nugget": em.hyper.nugget,
-            "lengthscales": {**dict(zip(scaling.x_columns, map(float, em.hyper.x_lengthscales))),
-                             **dict(zip([p.name for p in run.parameters],
-                                        map(float, em.hyper.t_lengthscales)))},
+            "blocks": {name: _block_record(hyper, [scaling.x_columns[c] for c in columns],
+                                           [p.name for p in run.parameters],
+                                           int(np.sum(em.fit_points["block"] == name)))
+                       for name, hyper, columns in zip(em.grid.names, em.hypers,
+                                                       em.grid.columns)},
             "parameter_inputs": dict(zip([p.name for p in run.parameters],
                                          em.grid.inputs.kinds)),
-            "fit_points": int(len(em.fit_points)), "fit_seconds": em.hyper.fit_seconds,
-            "fit_notes": list(em.hyper.notes),
+            "fit_points": int(len(em.fit_points)),
+            "fit_seconds": float(sum(h.fit_seconds for h in em.hypers)),
             "runs": int(em.grid.t.shape[0]), "rows": int(em.grid.x.shape[0]),
             "output_scaling": {o: {"mean": float(scaling.y_mean[i]),
                                    "std": float(scaling.y_std[i])}

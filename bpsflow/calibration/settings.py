@@ -84,10 +84,17 @@ class EmulatorSettings(_Strict):
     bends sharply in its tail, which a stationary kernel follows only with
     short length-scales everywhere. Priors with steps (discrete, empirical)
     always enter as ``unit``.
+
+    ``hyperparameters`` is ``per_output`` (default): each output is its own
+    GP with its own length-scales, fitted on its own ``points``; or
+    ``shared``: one GP over every output, the output type a variable input.
+    Heating can want short length-scales on a leakage area where electricity
+    wants long ones on everything but its loads; a shared kernel compromises.
     """
 
     points: int = Field(default=840, ge=20)
     inputs: Literal["value", "unit"] = "value"
+    hyperparameters: Literal["per_output", "shared"] = "per_output"
     test_fraction: float = Field(default=0.1, ge=0.0, lt=0.5)
     restarts: int = Field(default=0, ge=0)
     seed: int = 0

@@ -215,25 +215,28 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
     emulator = fit_emulator(x, paired.rows["output"], paired.simulated,
                             design.unit[paired.instances], points=em.points,
                             test_fraction=em.test_fraction, restarts=em.restarts,
-                            random_state=em.seed, inputs=inputs)
+                            random_state=em.seed, inputs=inputs,
+                            per_output=em.hyperparameters == "per_output")
     timings["emulator_seconds"] = time.perf_counter() - started
     if len(emulator.fit_points) < em.points:
         console.print(f"[{scenario.name}] note: calibration.emulator.points is {em.points}, "
                       f"but the training runs hold only {len(emulator.fit_points)} (run, "
                       f"{scenario.resolution} row) pairs; the emulator is fitted on all of them")
-    flat = [p.name for p, scale in zip(parameters, emulator.hyper.t_lengthscales)
-            if scale >= LENGTHSCALE_AT_BOUND]
-    if flat:
-        # the MLE can park a real input's length-scale at its bound: the posterior then
-        # rests on an emulator that ignores it
-        console.print(f"[yellow][{scenario.name}] note: the emulator finds no effect of "
-                      f"{', '.join(flat)} on these observations (length-scale at its bound); "
-                      "if the design runs say otherwise, more design runs or emulator points "
-                      "may let it see one[/yellow]", highlight=False)
+    for name, hyper in zip(emulator.grid.names, emulator.hypers):
+        flat = [p.name for p, scale in zip(parameters, hyper.t_lengthscales)
+                if scale >= LENGTHSCALE_AT_BOUND]
+        if flat:
+            # the MLE can park a real input's length-scale at its bound: the posterior then
+            # rests on an emulator that ignores it
+            where = "these observations" if name == "all" else name
+            console.print(f"[yellow][{scenario.name}] note: the emulator finds no effect of "
+                          f"{', '.join(flat)} on {where} (length-scale at its bound); if the "
+                          "design runs say otherwise, more design runs or emulator points may "
+                          "let it see one[/yellow]", highlight=False)
     if emulator.test is not None:
         console.print(f"[{scenario.name}] emulator: hold-out R² {emulator.test.r2:.4f} "
                       f"({len(emulator.test.test_runs)} runs), MLE fit "
-                      f"{emulator.hyper.fit_seconds:.1f} s")
+                      f"{sum(h.fit_seconds for h in emulator.hypers):.1f} s")
         if emulator.test.r2 < EMULATOR_R2_WARN:
             console.print(f"[yellow][{scenario.name}] warning: the emulator predicts its "
                           f"held-out runs poorly (R² {emulator.test.r2:.3f} < "
