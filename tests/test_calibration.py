@@ -225,7 +225,7 @@ def test_value_inputs_emulate_a_lognormal_effect_better_than_unit_inputs():
 def test_holdout_error_factor_keeps_each_rows_error_and_the_leading_correlation():
     """The correlated emulator error keeps few columns, each row's whole mean squared
     hold-out error (on the diagonal), and 99 % of the errors' second moment."""
-    from bpsflow.calibration.workflow import holdout_error_factor
+    from bpsflow.calibration.known_error import holdout_error_factor
 
     _, _, emulator = toy_emulator(k=2, runs=120, rows=30)
     test = emulator.test
@@ -237,6 +237,61 @@ def test_holdout_error_factor_keeps_each_rows_error_and_the_leading_correlation(
     np.testing.assert_allclose(np.diag(factor @ factor.T) + rest, np.diag(moment), rtol=1e-9)
     kept = np.sum((factor @ factor.T) ** 2) ** 0.5 / np.sum(moment ** 2) ** 0.5
     assert kept > 0.98
+
+
+def test_screened_error_factor_is_the_second_moment_about_the_nominal_run():
+    """The screened-out inputs' factor: deviations from the nominal run (column 0), in each
+    row's standardised units; with every direction kept ``F Fᵀ`` is their second moment
+    (the mean offset included), and a truncated one keeps each row's whole variance."""
+    from bpsflow.calibration.known_error import screened_error_factor
+
+    rng = np.random.default_rng(8)
+    rows, runs = 40, 25
+    hours = np.linspace(0, 2 * np.pi, rows)
+    nominal = 10 + np.sin(hours)
+    # two screened-out inputs: an offset with a non-zero mean, and a daily shape
+    effects = np.outer(np.ones(rows), 0.3 + rng.normal(0, 0.2, runs)) \
+        + np.outer(np.cos(hours), rng.normal(0, 0.5, runs))
+    simulated = np.column_stack([nominal, nominal[:, None] + effects])
+    row_std = np.full(rows, 2.0)
+    deviations = effects / 2.0
+    moment = deviations @ deviations.T / runs
+    full, rest = screened_error_factor(simulated, row_std, share=1.0)
+    np.testing.assert_allclose(full @ full.T + np.diag(rest), moment, atol=1e-12)
+    factor, rest = screened_error_factor(simulated, row_std, share=0.9)
+    assert factor.shape[1] <= 2      # two inputs: at most two directions carry the moment
+    np.testing.assert_allclose(np.diag(factor @ factor.T) + rest, np.diag(moment), rtol=1e-9)
+
+
+def test_screened_parameters_take_their_original_distribution_and_a_latin_hypercube(tmp_path):
+    """Only inputs screening fixed (constant, with ``provenance.original_distribution``) are
+    spread; instance 0 is all nominal; the others draw each screened input once per stratum
+    of its original distribution and keep every other input nominal."""
+    from bpsflow.calibration.known_error import screened_parameters, screened_samples
+    from bpsflow.config import load_config
+
+    raw = i600_raw()
+    names = [p["name"] for p in raw["parameters"] if p["distribution"]["type"] != "sampler"]
+    fixed, plain = names[0], names[1]
+    for p in raw["parameters"]:
+        if p["name"] == fixed:
+            p["provenance"] = {"original_distribution": {"type": "uniform", "lower": 0.5,
+                                                         "upper": 1.5}}
+            p["distribution"] = {"type": "constant", "value": 1.0}
+        elif p["name"] == plain:
+            p["distribution"] = {"type": "constant", "value": 2.0}   # fixed, no provenance
+    config = load_config(write_config(tmp_path, raw))
+    screened = screened_parameters(config)
+    assert [p.name for p in screened] == [fixed]
+    assert screened[0].distribution.type == "uniform"
+    samples = screened_samples(config, screened, runs=20, seed=3)
+    assert len(samples) == 21 and samples.index[0] == 0
+    nominal = {p.name: p.distribution.nominal for p in config.parameters}
+    assert samples.iloc[0].to_dict() == pytest.approx(nominal)
+    strata = np.floor((samples[fixed].to_numpy()[1:] - 0.5) / 1.0 * 20).astype(int)
+    assert sorted(strata) == list(range(20))
+    others = samples.drop(columns=fixed).iloc[1:]
+    assert np.allclose(others.to_numpy(), others.iloc[[0]].to_numpy())
 
 
 def test_hyperparameter_fit_escapes_the_short_length_scale_basin(monkeypatch):
@@ -410,7 +465,10 @@ def test_unmixed_chains_are_reported_as_not_converged():
 # The command on a short surrogate config
 
 
-def _short_calibration_config(tmp_path, scenarios: bool = False) -> tuple:
+def _short_calibration_config(tmp_path, scenarios: bool = False, screened: bool = False
+                              ) -> tuple:
+    """``screened``: the fixed inputs carry their distribution as screening writes it, and
+    the calibration spreads them (``calibration.screened_error``)."""
     raw = i600_raw()
     raw["model"]["backend"] = "surrogate"
     raw["model"]["periods"] = [{"name": "cal", "start": "11-08", "end": "11-19"}]
@@ -425,11 +483,15 @@ def _short_calibration_config(tmp_path, scenarios: bool = False) -> tuple:
             value = {"uniform": lambda d: (d["lower"] + d["upper"]) / 2,
                      "normal": lambda d: d["mean"], "sampler": lambda d: 0}[distribution["type"]]
             parameter["distribution"] = {"type": "constant", "value": float(value(distribution))}
+            if screened and distribution["type"] != "sampler":
+                parameter["provenance"] = {"original_distribution": distribution}
     raw["calibration"] = {
         "outputs": ["heating_power_w"], "resolution": "daily", "holdout_days": 3,
         "design": {"runs": 40, "seed": 1}, "emulator": {"points": 200},
         "bayes": {"chains": 2, "warmup": 150, "samples": 150, "ess_min": 50, "rhat_max": 1.1},
         "deterministic": {"starts": 2}, "posterior_runs": 10}
+    if screened:
+        raw["calibration"]["screened_error"] = {"runs": 8, "seed": 2}
     if scenarios:
         raw["calibration"]["scenarios"] = [
             {"name": "D-E", "outputs": ["heating_power_w"], "resolution": "daily"},
@@ -446,7 +508,7 @@ def _short_calibration_config(tmp_path, scenarios: bool = False) -> tuple:
 
 @pytest.mark.slow
 def test_cli_calibrate_writes_the_documented_files(tmp_path):
-    config, measured, truth = _short_calibration_config(tmp_path)
+    config, measured, truth = _short_calibration_config(tmp_path, screened=True)
     result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
                                       "--truth", str(truth), "--no-progress",
                                       "--allow-unconverged"])
@@ -469,6 +531,13 @@ def test_cli_calibrate_writes_the_documented_files(tmp_path):
     assert ("the emulator finds no effect of" in " ".join(result.output.split())) \
         is bool(at_bound)
     assert record["emulator"]["holdout"]["r2"] > 0.99
+    # the fixed inputs' spread: 8 runs + the nominal one, measured and in the likelihood
+    spread = record["screened_error"]
+    assert spread["runs"] == 8 and spread["components"] >= 1
+    assert spread["rms_standardised"]["heating_power_w"] > 0
+    assert "glazing_dirt_correction" not in spread["inputs"] and len(spread["inputs"]) > 5
+    assert len(pd.read_parquet(out / "screened_error" / "results.parquet")["instance"]
+               .unique()) == 9
     models = {row["model"] for row in record["heldout"]}
     assert models == {"prior", "bayes_gp", "bayes_physical", "deterministic_physical"}
     posterior = pd.read_parquet(out / "posterior.parquet")

@@ -178,6 +178,7 @@ def calibration_record(run: CalibrationRun) -> dict:
                 "runs": int(len(em.test.test_runs)), "r2": em.test.r2,
                 "rmse_standardised": em.test.rmse_standardised, "per_output": em.test.per_output},
         },
+        "screened_error": run.screened_error,
         "deterministic": {
             "objective": run.deterministic.objective, "evaluations": run.deterministic.evaluations,
             "seconds": run.deterministic.seconds, "starts": run.deterministic.starts},

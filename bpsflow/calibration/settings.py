@@ -70,6 +70,29 @@ class CalibrationDesign(_Strict):
     seed: int = 0
 
 
+class ScreenedErrorSettings(_Strict):
+    """The spread of the inputs screening fixed, as known error in the likelihood.
+
+    With ``runs`` > 0 the calibration runs ``runs`` simulations (plus one with
+    every input nominal): θ at its prior median, each input screening fixed
+    drawn (Latin hypercube, ``seed``) from the distribution it had before
+    (``provenance.original_distribution``, written by ``bpsflow sensitivity
+    --screen``). Their deviations from the nominal run enter the likelihood
+    as a known correlated error (:mod:`bpsflow.calibration.known_error`).
+    0 (default): screened-out inputs are taken as known at their medians.
+    """
+
+    runs: int = Field(default=0, ge=0, le=10_000)
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _check(self) -> ScreenedErrorSettings:
+        if 0 < self.runs < 5:
+            raise ValueError(f"runs: {self.runs} runs cannot measure a spread; use 0 (off) "
+                             "or at least 5 (40 resolve an hourly floor's)")
+        return self
+
+
 class EmulatorSettings(_Strict):
     """GP emulator of η(x, t) (seed eq. 20): ARD squared exponential, MLE hyperparameters.
 
@@ -257,6 +280,7 @@ class CalibrationSettings(_Strict):
     idle_fraction: float = Field(default=0.01, ge=0, lt=1)
     design: CalibrationDesign = Field(default_factory=CalibrationDesign)
     emulator: EmulatorSettings = Field(default_factory=EmulatorSettings)
+    screened_error: ScreenedErrorSettings = Field(default_factory=ScreenedErrorSettings)
     bayes: BayesSettings = Field(default_factory=BayesSettings)
     deterministic: DeterministicSettings = Field(default_factory=DeterministicSettings)
     posterior_runs: int = Field(default=100, ge=2)

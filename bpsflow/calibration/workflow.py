@@ -29,6 +29,7 @@ from scipy import special
 
 from bpsflow.alignment import check_coverage
 from bpsflow.calibration import design as design_module
+from bpsflow.calibration import known_error
 from bpsflow.calibration.design import Paired
 from bpsflow.calibration.emulator import (
     Emulator,
@@ -45,6 +46,8 @@ from bpsflow.files import read_parquet, read_user_text, write_text_atomic
 console = Console(stderr=True)
 
 POSTERIOR_RUNS_DIR = "posterior_runs"
+#: Beside the design runs: the screened-out inputs' ensemble (calibration.screened_error).
+SCREENED_DIR = "screened_error"
 #: Beside the physical check's runs: the model section (days, tests) they simulated.
 RUNS_WINDOW_FILE = "window.json"
 PREDICTIVE_DRAWS = 200
@@ -62,6 +65,9 @@ class Design:
     results: pd.DataFrame         # tidy results of every run
     backend: str
     seconds: float
+    #: the screened-out inputs' ensemble (instance 0 all nominal), when asked for
+    screened: pd.DataFrame | None = None
+    screened_names: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -91,7 +97,11 @@ class CalibrationRun:
     truth: dict[str, float] | None = None
     units: dict[str, str] = field(default_factory=dict)
     labels: dict[str, list[str]] = field(default_factory=dict)   # names of vector sites
-    extra_variance: np.ndarray | None = None   # per row: emulator error variance (standardised)
+    extra_variance: np.ndarray | None = None   # per row: known error variance (standardised)
+    #: per row: the screened-out inputs' ensemble, column 0 the nominal run (output units)
+    screened_simulated: np.ndarray | None = None
+    screened_names: list[str] = field(default_factory=list)
+    screened_error: dict | None = None     # what the screened-out inputs' spread added
     timings: dict[str, float] = field(default_factory=dict)
 
 
@@ -168,8 +178,53 @@ def prepare_design(config: Config, settings: CalibrationSettings, design_dir: Pa
                   f"({', '.join(p.name for p in parameters)}) on {backend}")
     results = design_module.run_samples(config, samples, design_dir, backend=backend, jobs=jobs,
                                         show_progress=show_progress)
-    return Design(parameters=parameters, unit=unit, results=results, backend=backend,
-                  seconds=time.perf_counter() - started)
+    design = Design(parameters=parameters, unit=unit, results=results, backend=backend,
+                    seconds=0.0)
+    if settings.screened_error.runs:
+        _screened_ensemble(config, settings, design, design_dir.parent / SCREENED_DIR, jobs,
+                           show_progress)
+    design.seconds = time.perf_counter() - started
+    return design
+
+
+def _screened_ensemble(config: Config, settings: CalibrationSettings, design: Design,
+                       run_dir: Path, jobs: int | None, show_progress: bool) -> None:
+    """Run the screened-out inputs' ensemble into ``design`` (see :mod:`known_error`)."""
+    screened = known_error.screened_parameters(config)
+    calibrated = {p.name for p in design.parameters}
+    screened = [p for p in screened if p.name not in calibrated]
+    if not screened:
+        console.print("note: calibration.screened_error.runs is set, but no constant parameter "
+                      "carries provenance.original_distribution (what `bpsflow sensitivity "
+                      "--screen` writes): there is no screened-out input to spread; no "
+                      "screened-input error is added", highlight=False)
+        return
+    runs = settings.screened_error.runs
+    console.print(f"screened-out inputs: {runs} runs + 1 nominal over the {len(screened)} "
+                  "inputs screening fixed, drawn from their original distributions, θ at its "
+                  "prior median", highlight=False)
+    samples = known_error.screened_samples(config, screened, runs, settings.screened_error.seed)
+    try:
+        results = design_module.run_samples(config, samples, run_dir, backend=design.backend,
+                                            jobs=jobs, show_progress=show_progress)
+    except BpsflowError as exc:
+        # the ensemble widens the likelihood; the runs that finished still measure the spread
+        from bpsflow.simulation.rundir import read_results
+
+        console.print(f"[yellow]note: screened-out inputs' ensemble: {exc}; the spread is "
+                      "measured on the runs that finished[/yellow]", highlight=False)
+        try:
+            results = read_results(run_dir)
+        except BpsflowError:
+            results = pd.DataFrame({"instance": []})
+    finished = set(results["instance"].unique()) if len(results) else set()
+    if 0 not in finished or len(finished) < 6:
+        console.print("[yellow]note: the screened-out inputs' nominal run or most of the "
+                      "ensemble failed; no screened-input error is added[/yellow]",
+                      highlight=False)
+        return
+    design.screened = results
+    design.screened_names = [p.name for p in screened]
 
 
 def measured_outputs(config: Config, measured: pd.DataFrame) -> list[str]:
@@ -204,6 +259,15 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
     names = design_module.variable_input_names(scenario)
     x = design_module.variable_inputs(config, paired.rows, scenario.resolution, names,
                                       scenario.outputs)
+    screened_simulated = None
+    if design.screened is not None:
+        ensemble = design_module.pair(config, design.screened, measured, scenario.outputs,
+                                      scenario.resolution, settings.holdout_days,
+                                      settings.idle_fraction, measured_source)
+        matched = design_module.resimulated(paired, ensemble)
+        # nominal run first: the deviations are taken from it
+        order = np.argsort(matched.instances != 0, kind="stable")
+        screened_simulated = matched.simulated[:, order]
     obs_rows = np.flatnonzero((paired.rows["split"] == "calibration").to_numpy())
     heldout_rows = np.flatnonzero((paired.rows["split"] == "heldout").to_numpy())
     console.print(f"[{scenario.name}] {len(obs_rows)} calibration and {len(heldout_rows)} "
@@ -267,7 +331,9 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
                          parameters=parameters, paired=paired, x=x, emulator=emulator,
                          obs_rows=obs_rows, heldout_rows=heldout_rows, deterministic=optimum,
                          effects=effects, active=active, truth=truth, timings=timings,
-                         units={o: config.outputs[o].unit for o in config.outputs})
+                         units={o: config.outputs[o].unit for o in config.outputs},
+                         screened_simulated=screened_simulated,
+                         screened_names=design.screened_names)
     if method == "bayes":
         _bayes(run, settings, show_progress)
     if not physical_check:
@@ -301,7 +367,13 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
                         for o in emulator.scaling.outputs])
         extra = mse[row_output]
     elif bs.emulator_error == "correlated" and emulator.test is not None:
-        factor, extra = holdout_error_factor(emulator, row_output)
+        factor, extra = known_error.holdout_error_factor(emulator, row_output)
+    if run.screened_simulated is not None:
+        screened_factor, screened_rest = known_error.screened_error_factor(
+            run.screened_simulated, emulator.scaling.y_std[row_output])
+        factor = screened_factor if factor is None else np.hstack([factor, screened_factor])
+        extra = screened_rest if extra is None else extra + screened_rest
+        _report_screened_error(run, screened_factor, screened_rest)
     run.extra_variance = extra
     data = bayes.koh_data(emulator.grid, run.obs_rows, y, run.active, bs,
                           None if extra is None else extra[run.obs_rows],
@@ -493,37 +565,21 @@ def checked_runs(folder: Path, window: Config, samples: pd.DataFrame) -> pd.Data
     return results
 
 
-#: Share of the emulator's hold-out error second moment its correlated factor keeps as columns.
-HOLDOUT_FACTOR_SHARE = 0.99
-
-
-def holdout_error_factor(emulator: Emulator, row_output: np.ndarray,
-                         share: float = HOLDOUT_FACTOR_SHARE) -> tuple[np.ndarray, np.ndarray]:
-    """``F`` (rows × r) and a per-row variance ``v`` with ``F Fᵀ + diag(v)`` the emulator's
-    hold-out error covariance.
-
-    Each held-out run's error at every row (standardised), scaled by
-    ``1/√runs``, is one column of the errors' empirical second moment: its
-    diagonal is each row's mean squared error and its off-diagonal keeps how
-    the errors of one run move together over the rows. An emulator's error at
-    a given θ is a smooth function of the variable inputs, nearly the same
-    over hundreds of hourly rows; counted as independent per row it averages
-    away and θ absorbs it. ``F`` keeps the leading singular directions that
-    hold ``share`` of the second moment (each column costs the likelihood one
-    more row in its Woodbury system); ``v`` puts the rest back on the
-    diagonal, so every row keeps its whole mean squared error.
-    """
-    test = emulator.test
-    assert test is not None
-    std = emulator.scaling.y_std[row_output]
-    errors = (test.simulated - test.predicted) / std[None, :]        # (test runs, rows)
-    full = errors.T / np.sqrt(len(errors))
-    vectors, values, _ = np.linalg.svd(full, full_matrices=False)
-    energy = np.cumsum(values ** 2) / max(float(np.sum(values ** 2)), 1e-300)
-    keep = min(int(np.searchsorted(energy, share)) + 1, len(values))
-    factor = vectors[:, :keep] * values[:keep]
-    rest = np.clip(np.sum(full * full, axis=1) - np.sum(factor * factor, axis=1), 0.0, None)
-    return factor, rest
+def _report_screened_error(run: CalibrationRun, factor: np.ndarray, rest: np.ndarray) -> None:
+    """Say how large the screened-out inputs' spread is, per output, against the noise."""
+    outputs = run.paired.rows["output"].to_numpy()
+    variance = np.sum(factor * factor, axis=1) + rest
+    spread = {o: float(np.sqrt(np.mean(variance[outputs == o])))
+              for o in run.emulator.scaling.outputs}
+    run.screened_error = {"inputs": run.screened_names,
+                          "runs": int(run.screened_simulated.shape[1] - 1)
+                          if run.screened_simulated is not None else 0,
+                          "components": int(factor.shape[1]),
+                          "rms_standardised": spread}
+    console.print(f"[{run.scenario.name}] screened-out inputs' spread (RMS, standardised): "
+                  + ", ".join(f"{o} {v:.3f}" for o, v in spread.items())
+                  + f"; {factor.shape[1]} correlated components in the likelihood",
+                  highlight=False)
 
 
 def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
