@@ -142,8 +142,8 @@ def test_per_output_emulator_learns_each_outputs_own_lengthscales():
     puts it far out, the one that bends in it short; the shared GP must compromise, and
     predicts the slow output's held-out runs worse."""
     frame, output, simulated, unit = two_output_problem()
-    own = fit_emulator(frame, output, simulated, unit, points=400, test_fraction=0.2)
-    shared = fit_emulator(frame, output, simulated, unit, points=400, test_fraction=0.2,
+    own = fit_emulator(frame, output, simulated, unit, points=200, test_fraction=0.2)
+    shared = fit_emulator(frame, output, simulated, unit, points=200, test_fraction=0.2,
                           per_output=False)
     assert own.grid.names == ("fast", "slow") and shared.grid.names == ("all",)
     fast, slow = own.hypers
@@ -171,7 +171,7 @@ def test_an_input_the_emulator_ignores_is_reported_only_where_the_runs_show_its_
     from bpsflow.config import Parameter
 
     frame, output, simulated, unit = two_output_problem()
-    emulator = fit_emulator(frame, output, simulated, unit, points=300, test_fraction=0.0)
+    emulator = fit_emulator(frame, output, simulated, unit, points=150, test_fraction=0.0)
     parameters = [Parameter.model_validate({"name": n, "distribution": {"type": "uniform",
                                                                         "lower": 0, "upper": 1},
                                             "targets": [{"weather": "dry_bulb_temperature"}]})
@@ -191,7 +191,7 @@ def test_per_output_emulator_likelihood_is_the_block_diagonal_gaussian(likelihoo
     from numpyro.infer.util import log_density
 
     frame, output, simulated, unit = two_output_problem(runs=40, hours=8)
-    emulator = fit_emulator(frame, output, simulated, unit, points=300, test_fraction=0.0)
+    emulator = fit_emulator(frame, output, simulated, unit, points=150, test_fraction=0.0)
     obs_rows = np.array([5, 0, 3, 2, 9, 12, 7, 4, 1, 14, 11])
     y = np.random.default_rng(6).normal(size=len(obs_rows))
     settings = BayesSettings(likelihood=likelihood, inducing_points=len(obs_rows), ard=True)
