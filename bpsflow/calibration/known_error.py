@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from bpsflow.calibration.design import nominal_sample, unit_to_values
 from bpsflow.calibration.emulator import Emulator
 from bpsflow.config import Config, Parameter
 from bpsflow.sampling import latin_hypercube_unit
@@ -103,11 +104,11 @@ def screened_samples(config: Config, screened: list[Parameter], runs: int,
     """Run samples: instance 0 every input nominal, then ``runs`` Latin-hypercube draws of
     the screened-out inputs from their original distributions, every other input nominal
     (θ at its prior median)."""
-    unit = latin_hypercube_unit(runs, len(screened), seed)
-    base = {p.name: float(p.distribution.nominal) for p in config.parameters}
-    frame = pd.DataFrame([base] * (runs + 1), index=pd.RangeIndex(runs + 1, name="instance"))
+    values = unit_to_values(latin_hypercube_unit(runs, len(screened), seed), screened)
+    frame = pd.DataFrame([nominal_sample(config)] * (runs + 1),
+                         index=pd.RangeIndex(runs + 1, name="instance"))
     for j, p in enumerate(screened):
-        frame.loc[1:, p.name] = p.distribution.ppf(np.clip(unit[:, j], 1e-9, 1 - 1e-9))
+        frame.loc[1:, p.name] = values[:, j]
     return frame
 
 
