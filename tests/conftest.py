@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 import yaml
+
+# The tests run on two xdist workers on two cores. Multi-threaded BLAS in each worker (and
+# in the CLI subprocesses they start) oversubscribes the cores, and OpenBLAS's waiting
+# threads then make a 200 x 200 Cholesky about a hundred times slower. One BLAS thread per
+# process; set before numpy is first imported, and inherited by subprocesses.
+for _threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_threads, "1")
 
 ROOT = Path(__file__).resolve().parents[1]
 I600 = ROOT / "configs" / "i600.yaml"
