@@ -486,8 +486,8 @@ def test_unmixed_chains_are_reported_as_not_converged():
 # The command on a short surrogate config
 
 
-def _short_calibration_config(tmp_path, scenarios: bool = False, screened: bool = False
-                              ) -> tuple:
+def _short_calibration_config(tmp_path, scenarios: bool = False, screened: bool = False,
+                              calibration: dict | None = None) -> tuple:
     """``screened``: the fixed inputs carry their distribution as screening writes it, and
     the calibration spreads them (``calibration.screened_error``)."""
     raw = i600_raw()
@@ -513,6 +513,7 @@ def _short_calibration_config(tmp_path, scenarios: bool = False, screened: bool 
         "deterministic": {"starts": 2}, "posterior_runs": 10}
     if screened:
         raw["calibration"]["screened_error"] = {"runs": 8, "seed": 2}
+    raw["calibration"].update(calibration or {})
     if scenarios:
         raw["calibration"]["scenarios"] = [
             {"name": "D-E", "outputs": ["heating_power_w"], "resolution": "daily"},
@@ -568,6 +569,33 @@ def test_cli_calibrate_writes_the_documented_files(tmp_path):
     rerun_times = pd.read_parquet(out / "posterior_runs" / "results.parquet")["timestamp"]
     assert rerun_times.max() == design_times.max() and rerun_times.min() > design_times.min()
     assert {"chain", "draw", "glazing_dirt_correction", "noise_std"} <= set(posterior.columns)
+
+
+@pytest.mark.slow
+def test_refinement_runs_posterior_draws_and_the_emulator_errs_less_where_the_posterior_is(
+        tmp_path):
+    """With a design too thin for the emulator, runs at posterior draws are added and the
+    posterior sampled again: the refined emulator's error at the next posterior's draws
+    (round 2's record) is below the first emulator's at the first posterior's (round 1)."""
+    config, measured, truth = _short_calibration_config(tmp_path, calibration={
+        "design": {"runs": 10, "seed": 3}, "refinement": {"runs": 10, "rounds": 2, "seed": 1}})
+    result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
+                                      "--truth", str(truth), "--no-progress",
+                                      "--allow-unconverged"])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "run" / "calibration"
+    record = json.loads((out / "calibration.json").read_text())
+    rounds = record["refinement"]["rounds"]
+    assert [r["design_runs"] for r in rounds] == [20, 30]
+    # the final emulator is conditioned on the design runs and both rounds'
+    assert record["emulator"]["runs"] == 30
+    errors = [r["emulator_error_at_posterior"]["heating_power_w"] for r in rounds]
+    assert errors[1] < errors[0], errors
+    for number in (1, 2):
+        samples = pd.read_parquet(out / "refinement" / f"round{number}" / "samples.parquet")
+        assert len(samples) == 10
+        assert samples["instance"].min() == 10 * number
+    assert "refinement round 2" in " ".join(result.output.split())
 
 
 @pytest.mark.slow

@@ -179,6 +179,7 @@ def calibration_record(run: CalibrationRun) -> dict:
                 "rmse_standardised": em.test.rmse_standardised, "per_output": em.test.per_output},
         },
         "screened_error": run.screened_error,
+        "refinement": run.refinement,
         "deterministic": {
             "objective": run.deterministic.objective, "evaluations": run.deterministic.evaluations,
             "seconds": run.deterministic.seconds, "starts": run.deterministic.starts},

@@ -93,6 +93,31 @@ class ScreenedErrorSettings(_Strict):
         return self
 
 
+class RefinementSettings(_Strict):
+    """Design runs added where the posterior lies, and the posterior sampled again.
+
+    With ``runs`` > 0 a Bayesian calibration, once sampled, runs the model at
+    ``runs`` posterior draws of θ (spread over the draws, ``seed``) over the
+    design's period, adds them to the design runs, refits the emulator and
+    samples the posterior again from its new moments: the emulator is then
+    densest where the posterior is, which is where its error biases θ
+    (sequential design; seed §2.3 on the emulator's accuracy, Santner et al.
+    2018, ch. 6). ``rounds`` repeats this. 0 (default): the first posterior
+    is the answer.
+    """
+
+    runs: int = Field(default=0, ge=0, le=10_000)
+    rounds: int = Field(default=1, ge=1, le=5)
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _check(self) -> RefinementSettings:
+        if 0 < self.runs < 10:
+            raise ValueError(f"runs: {self.runs} runs are too few to move the emulator; use 0 "
+                             "(off) or at least 10")
+        return self
+
+
 class EmulatorSettings(_Strict):
     """GP emulator of η(x, t) (seed eq. 20): ARD squared exponential, MLE hyperparameters.
 
@@ -281,6 +306,7 @@ class CalibrationSettings(_Strict):
     design: CalibrationDesign = Field(default_factory=CalibrationDesign)
     emulator: EmulatorSettings = Field(default_factory=EmulatorSettings)
     screened_error: ScreenedErrorSettings = Field(default_factory=ScreenedErrorSettings)
+    refinement: RefinementSettings = Field(default_factory=RefinementSettings)
     bayes: BayesSettings = Field(default_factory=BayesSettings)
     deterministic: DeterministicSettings = Field(default_factory=DeterministicSettings)
     posterior_runs: int = Field(default=100, ge=2)

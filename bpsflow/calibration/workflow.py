@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +48,7 @@ console = Console(stderr=True)
 POSTERIOR_RUNS_DIR = "posterior_runs"
 #: Beside the design runs: the screened-out inputs' ensemble (calibration.screened_error).
 SCREENED_DIR = "screened_error"
+REFINEMENT_DIR = "refinement"
 #: Beside the physical check's runs: the model section (days, tests) they simulated.
 RUNS_WINDOW_FILE = "window.json"
 PREDICTIVE_DRAWS = 200
@@ -68,6 +69,13 @@ class Design:
     #: the screened-out inputs' ensemble (instance 0 all nominal), when asked for
     screened: pd.DataFrame | None = None
     screened_names: list[str] = field(default_factory=list)
+    #: runs added at posterior draws (calibration.refinement), after the hypercube's
+    refined_runs: int = 0
+
+    @property
+    def space_filling_runs(self) -> int:
+        """Instances below this number are the Latin hypercube's."""
+        return len(self.unit) - self.refined_runs
 
 
 @dataclass
@@ -102,6 +110,7 @@ class CalibrationRun:
     screened_simulated: np.ndarray | None = None
     screened_names: list[str] = field(default_factory=list)
     screened_error: dict | None = None     # what the screened-out inputs' spread added
+    refinement: dict | None = None         # the refinement rounds (calibration.refinement)
     timings: dict[str, float] = field(default_factory=dict)
 
 
@@ -236,23 +245,26 @@ def measured_outputs(config: Config, measured: pd.DataFrame) -> list[str]:
 LENGTHSCALE_AT_BOUND = 999.0
 
 
-def ignored_inputs(emulator: Emulator, unit: np.ndarray, parameters: list[Parameter]
-                   ) -> dict[str, list[str]]:
+def ignored_inputs(emulator: Emulator, unit: np.ndarray, parameters: list[Parameter],
+                   space_filling: np.ndarray | None = None) -> dict[str, list[str]]:
     """Per emulator block: parameters whose length-scale sits at its bound though they act.
 
     A parameter acts on a block when the runs' mean standardised output over
     the block's rows differs between the quintiles of its prior-CDF value
     ``unit`` (runs × k): one-way ANOVA, p < 0.001, which sees effects that are
     not monotone too. An output that truly ignores a parameter (electricity
-    and a glazing U-value) is not reported.
+    and a glazing U-value) is not reported. ``space_filling`` (mask over the
+    runs) keeps the test to the Latin hypercube's runs: runs clustered at
+    posterior draws (refinement) move every parameter's quintiles together.
     """
 
+    keep = np.ones(len(unit), dtype=bool) if space_filling is None else space_filling
     out: dict[str, list[str]] = {}
     for name, block in zip(emulator.grid.names, emulator.grid.blocks):
-        response = block.y.mean(axis=1)
+        response = block.y.mean(axis=1)[keep]
         flat = [p.name for j, p in enumerate(parameters)
                 if block.hyper.t_lengthscales[j] >= LENGTHSCALE_AT_BOUND
-                and _acts(unit[:, j], response)]
+                and _acts(unit[keep, j], response)]
         if flat:
             out[name] = flat
     return out
@@ -280,7 +292,92 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
 
     ``physical_check=False`` stops after the posterior (no re-runs of the
     physical model, no held-out scores): for timing the sampler alone.
+    With ``calibration.refinement.runs`` a Bayesian posterior is refined
+    (:func:`refine_posterior`) before the check.
     """
+    run = _calibrate_on(config, settings, scenario, design, measured, measured_source, method,
+                        truth, show_progress)
+    if method == "bayes" and settings.refinement.runs:
+        run = refine_posterior(run, config, settings, design, measured, measured_source,
+                               out_dir / REFINEMENT_DIR, jobs, show_progress)
+    if not physical_check:
+        return run
+    _physical_check(run, config, settings, design, measured, measured_source, out_dir, jobs,
+                    show_progress)
+    return run
+
+
+def refine_posterior(run: CalibrationRun, config: Config, settings: CalibrationSettings,
+                     design: Design, measured: pd.DataFrame, measured_source: Path | None,
+                     folder: Path, jobs: int | None = None,
+                     show_progress: bool = True) -> CalibrationRun:
+    """Add design runs at posterior draws, refit the emulator and sample again.
+
+    Each round runs ``calibration.refinement.runs`` posterior draws of θ
+    (spread over the shuffled draws) over the design's period in
+    ``folder/round<N>``, adds them to the design runs and calibrates again.
+    The emulator's error, which biases θ, is largest where design runs are
+    sparse; the new runs put them where the posterior is (sequential
+    design, Santner et al. 2018, ch. 6). The earlier emulator's error on
+    the new runs is recorded: it is the error the earlier posterior rested on.
+    """
+    refinement = settings.refinement
+    rounds = []
+    first_timings = run.timings
+    for round_number in range(1, refinement.rounds + 1):
+        assert run.unit_draws is not None       # a Bayesian run's posterior draws
+        rng = np.random.default_rng([refinement.seed, round_number])
+        draws = run.unit_draws[rng.permutation(len(run.unit_draws))]
+        picked = draws[np.linspace(0, len(draws) - 1, refinement.runs).astype(int)]
+        picked = np.clip(picked, 1e-6, 1 - 1e-6)
+        samples = design_module.samples_frame(config, design.parameters, picked,
+                                              first_instance=len(design.unit))
+        console.print(f"[{run.scenario.name}] refinement round {round_number}: "
+                      f"{len(samples)} runs at posterior draws")
+        results = design_module.run_samples(config, samples, folder / f"round{round_number}",
+                                            backend=design.backend, jobs=jobs,
+                                            show_progress=show_progress)
+        error = _emulator_error_at(run, config, settings, results, picked, measured,
+                                   measured_source)
+        console.print(f"[{run.scenario.name}] refinement round {round_number}: the emulator's "
+                      "error at the posterior draws (RMS, standardised) "
+                      + ", ".join(f"{o} {v:.3g}" for o, v in error.items()))
+        design = replace(design, unit=np.vstack([design.unit, picked]),
+                         results=pd.concat([design.results, results], ignore_index=True),
+                         refined_runs=design.refined_runs + len(picked))
+        run = _calibrate_on(config, settings, run.scenario, design, measured, measured_source,
+                            "bayes", run.truth, show_progress)
+        rounds.append({"round": round_number, "runs": int(len(picked)),
+                       "design_runs": int(len(design.unit)),
+                       "emulator_error_at_posterior": error})
+    run.timings = {**run.timings, **{f"first_{k}": v for k, v in first_timings.items()}}
+    run.refinement = {"runs": refinement.runs, "rounds": rounds}
+    return run
+
+
+def _emulator_error_at(run: CalibrationRun, config: Config, settings: CalibrationSettings,
+                       results: pd.DataFrame, unit: np.ndarray, measured: pd.DataFrame,
+                       measured_source: Path | None) -> dict[str, float]:
+    """RMS standardised error of ``run``'s emulator, per output, on new runs at ``unit``
+    (rows of ``unit`` are the runs' instances in order), over the calibration rows."""
+    paired = design_module.resimulated(run.paired, design_module.pair(
+        config, results, measured, run.scenario.outputs, run.scenario.resolution,
+        settings.holdout_days, settings.idle_fraction, measured_source))
+    emulator = run.emulator
+    outputs = run.paired.rows["output"].to_numpy()
+    simulated = emulator.scaling.y(paired.simulated[:, np.argsort(paired.instances)], outputs)
+    predicted = emulator.grid.predict_mean(emulator.grid.t_of_unit(unit))   # (runs, rows)
+    error = predicted - simulated.T
+    rows = run.obs_rows
+    return {o: float(np.sqrt(np.mean(error[:, rows[outputs[rows] == o]] ** 2)))
+            for o in emulator.scaling.outputs}
+
+
+def _calibrate_on(config: Config, settings: CalibrationSettings, scenario: Scenario,
+                  design: Design, measured: pd.DataFrame, measured_source: Path | None,
+                  method: str, truth: dict[str, float] | None,
+                  show_progress: bool) -> CalibrationRun:
+    """Emulator, deterministic optimum and (``bayes``) posterior on ``design``'s runs."""
     from bpsflow.calibration import deterministic as det
 
     timings: dict[str, float] = {"design_seconds": design.seconds}
@@ -321,8 +418,8 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
         console.print(f"[{scenario.name}] note: calibration.emulator.points is {em.points}, "
                       f"but the training runs hold only {len(emulator.fit_points)} (run, "
                       f"{scenario.resolution} row) pairs; the emulator is fitted on all of them")
-    for name, flat in ignored_inputs(emulator, design.unit[paired.instances],
-                                     parameters).items():
+    for name, flat in ignored_inputs(emulator, design.unit[paired.instances], parameters,
+                                     paired.instances < design.space_filling_runs).items():
         # the MLE can park a real input's length-scale at its bound: the posterior then
         # rests on an emulator that ignores it
         where = "these observations" if name == "all" else name
@@ -370,10 +467,6 @@ def calibrate_scenario(config: Config, settings: CalibrationSettings, scenario: 
                          screened_names=design.screened_names)
     if method == "bayes":
         _bayes(run, settings, show_progress)
-    if not physical_check:
-        return run
-    _physical_check(run, config, settings, design, measured, measured_source, out_dir, jobs,
-                    show_progress)
     return run
 
 
