@@ -172,8 +172,9 @@ def posterior_runs(names: list[str], overrides: dict, measured_path: Path,
                    truth_path: Path | None = None):
     """Calibrate the demo's scenarios ``names`` on its design, posterior only (no re-runs).
 
-    ``overrides`` replace ``calibration.bayes`` settings (``emulator.KEY``: a
-    ``calibration.emulator`` one); yields each scenario's run.
+    ``overrides`` replace ``calibration.bayes`` settings (``SECTION.KEY``: one of
+    another ``calibration`` section, e.g. ``emulator.points`` or ``refinement.runs``);
+    yields each scenario's run.
     """
     from bpsflow.calibration import bayes, workflow
     from bpsflow.config import load_config
@@ -181,10 +182,12 @@ def posterior_runs(names: list[str], overrides: dict, measured_path: Path,
 
     config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
     settings = workflow.settings_of(config)
-    emulator = {k.split(".", 1)[1]: v for k, v in overrides.items() if k.startswith("emulator.")}
-    settings.emulator = settings.emulator.model_copy(update=emulator)
-    settings.bayes = settings.bayes.model_copy(
-        update={k: v for k, v in overrides.items() if not k.startswith("emulator.")})
+    sections: dict[str, dict] = {}
+    for key, value in overrides.items():
+        section, name = key.split(".", 1) if "." in key else ("bayes", key)
+        sections.setdefault(section, {})[name] = value
+    for section, update in sections.items():
+        setattr(settings, section, getattr(settings, section).model_copy(update=update))
     bayes.configure_jax(settings.bayes.chains)
     measured = read_measured(measured_path, config).frame
     design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"

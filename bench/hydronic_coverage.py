@@ -102,8 +102,8 @@ def main() -> None:
     parser.add_argument("--model-truth", action="store_true",
                         help="data from the calibrated model itself (screened inputs nominal)")
     parser.add_argument("--set", action="append", default=[],
-                        help="calibration.bayes override, key=JSON value "
-                        "(emulator.key: a calibration.emulator one)")
+                        help="calibration.bayes override, key=JSON value (SECTION.key: "
+                        "another calibration section's, e.g. refinement.runs=60)")
     args = parser.parse_args()
     names = args.scenarios.split(",")
     overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
