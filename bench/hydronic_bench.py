@@ -95,6 +95,12 @@ def record_demo(minutes: float) -> None:
            parameters=len(truth))
     record("hydronic_truth_coverage_90_hourly", covered[hourly].sum() / (len(truth) * hourly.sum()),
            "share", "0.80-0.98", command, truths=1)
+    if "rhat_max" in table:
+        record("hydronic_rhat_max", float(table["rhat_max"].max()), "R-hat", "<= 1.01",
+               command, per_scenario=dict(zip(table["scenario"], table["rhat_max"].tolist())),
+               min_ess_per_second=dict(zip(table["scenario"],
+                                           table["min_ess_per_second"].tolist())),
+               mcmc_seconds=dict(zip(table["scenario"], table["mcmc_seconds"].tolist())))
     risks = {}
     for folder in sorted((out / "scenarios").iterdir()):
         decision = folder / "decision" / "supply_minus_5K" / "decision.json"

@@ -118,6 +118,8 @@ def main() -> None:
         f"{args.scenarios}" + "".join(f" --set {item}" for item in args.set)
     name = "hydronic_truth_coverage_90_model_truth" if args.model_truth \
         else "hydronic_truth_coverage_90_scenarios"
+    # an experiment with overrides must not overwrite the figure of the shipped config
+    name += "".join("_" + key.replace(".", "_") for key in sorted(overrides))
     record(name, covered / total, "share", "0.80-0.98",
            command, truths=len(seeds), overrides=overrides,
            per_truth={str(seed): {name: f"{sum(v)}/{len(v)}" for name, v in t.items()}

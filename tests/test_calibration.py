@@ -482,6 +482,22 @@ def test_unmixed_chains_are_reported_as_not_converged():
     assert any("ESS" in reason for reason in convergence.reasons)
 
 
+@pytest.mark.slow
+def test_extended_chains_are_the_chains_a_longer_run_draws():
+    x, unit, emulator = toy_emulator(k=1, runs=30, rows=8)
+    observed = toy_simulator(x, np.array([[0.4]]))[:, 0]
+    short = BayesSettings(chains=2, warmup=50, samples=30, seed=3)
+    long = short.model_copy(update={"samples": 90})
+    _, _, posterior = _koh(emulator, observed, np.arange(8), short, laplace=False)
+    _, _, reference = _koh(emulator, observed, np.arange(8), long, laplace=False)
+    extended = bayes.extend_posterior(bayes.extend_posterior(posterior))
+    assert extended.extensions == 2 and extended.draws["z"].shape[:2] == (2, 90)
+    # warm-up is not repeated and each chain carries on from its own state and key
+    np.testing.assert_allclose(extended.draws["z"], reference.draws["z"], rtol=1e-6, atol=1e-9)
+    np.testing.assert_array_equal(extended.num_steps, reference.num_steps)
+    assert extended.warmup_num_steps.shape == posterior.warmup_num_steps.shape
+
+
 # ---------------------------------------------------------------------------
 # The command on a short surrogate config
 
@@ -654,14 +670,30 @@ def test_decide_takes_the_physical_checks_runs_of_the_held_out_week(tmp_path):
 
 @pytest.mark.slow
 def test_cli_exits_non_zero_when_not_converged(tmp_path):
-    config, measured, _ = _short_calibration_config(tmp_path)
+    bayes_settings = {"chains": 2, "warmup": 150, "samples": 150, "ess_min": 50,
+                      "rhat_max": 1.1, "extend": 2}
+    config, measured, _ = _short_calibration_config(tmp_path,
+                                                    calibration={"bayes": bayes_settings})
     args = ["calibrate", str(config), "--measured", str(measured), "--no-progress",
             "--warmup", "1", "--samples", "20"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 1, result.output
     assert "not converged" in result.output.lower()
     record = json.loads((tmp_path / "run" / "calibration" / "calibration.json").read_text())
-    assert record["diagnostics"]["converged"] is False and record["diagnostics"]["reasons"]
+    diagnostics = record["diagnostics"]
+    assert diagnostics["converged"] is False and diagnostics["reasons"]
+    # one warm-up step leaves divergent chains, which longer chains do not cure
+    assert diagnostics["extensions"] == 0 and diagnostics["samples_per_chain"] == 20
+    # warmed up but too short for ess_min 50: the chains carry on, 20 draws at a time
+    args[-3] = "150"
+    result = CliRunner().invoke(app, args)
+    diagnostics = json.loads((tmp_path / "run" / "calibration" / "calibration.json")
+                             .read_text())["diagnostics"]
+    assert diagnostics["extensions"] >= 1, result.output
+    assert diagnostics["samples_per_chain"] == 20 * (1 + diagnostics["extensions"])
+    assert "extension 1 of 2" in " ".join(result.output.split())
+    assert diagnostics["converged"] or diagnostics["extensions"] == 2
+    assert result.exit_code == (0 if diagnostics["converged"] else 1), result.output
 
 
 @pytest.mark.slow

@@ -518,6 +518,9 @@ class Posterior:
     warmup_seconds: float
     sampling_seconds: float
     chain_method: str
+    extensions: int = 0            # times every chain drew ``samples`` more (see extend_posterior)
+    # per chain group: its NumPyro MCMC object, last state and model arrays, to draw on
+    resume: list = field(default_factory=list, repr=False, compare=False)
 
     @property
     def seconds(self) -> float:
@@ -669,6 +672,7 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
             part_init = {k: v[0] for k, v in part_init.items()}
         key = jax.random.fold_in(jax.random.PRNGKey(settings.seed), first)
         result = _run(mcmc, key, arrays, part_init, timed_warmup)
+        result["resume"] = (mcmc, mcmc.last_state, arrays)
         parts.append(result)
         warmup_seconds += result["warmup_seconds"]
         sampling_seconds += result["sampling_seconds"]
@@ -683,7 +687,45 @@ def sample_posterior(data: KohData, settings: BayesSettings, init: dict | None =
                      warmup_num_steps=joined("warmup_num_steps"),
                      diverging=joined("diverging"), step_size=joined("step_size"),
                      warmup_seconds=warmup_seconds, sampling_seconds=sampling_seconds,
-                     chain_method=label)
+                     chain_method=label, resume=[p["resume"] for p in parts])
+
+
+def extend_posterior(posterior: Posterior) -> Posterior:
+    """Every chain draws as many samples again, carrying on from its last state.
+
+    Warm-up is not repeated: the adapted step size and mass matrix and each
+    chain's position carry over, so the longer chains are the chains NUTS
+    would have drawn with more samples from the start. R-hat and ESS of the
+    joined draws then judge longer chains (Vehtari et al. 2021 recommend
+    running longer when R-hat exceeds 1.01).
+    """
+    if not posterior.resume:
+        raise ValueError("this posterior keeps no sampler state to carry on from")
+    fields = ("num_steps", "diverging", "adapt_state.step_size")
+    draws: dict[str, list] = {k: [] for k in posterior.draws}
+    steps, diverging, step_size, resume = [], [], [], []
+    started = time.perf_counter()
+    for mcmc, last_state, arrays in posterior.resume:
+        chains = mcmc.num_chains
+        mcmc.post_warmup_state = last_state
+        mcmc.run(last_state.rng_key, arrays, extra_fields=fields)
+        for k, v in mcmc.get_samples(group_by_chain=True).items():
+            draws[k].append(np.asarray(v))
+        extra = mcmc.get_extra_fields(group_by_chain=True)
+        steps.append(np.asarray(extra["num_steps"]).reshape(chains, -1))
+        diverging.append(np.asarray(extra["diverging"]).reshape(chains, -1))
+        step_size.append(np.asarray(extra["adapt_state.step_size"]).reshape(chains, -1)[:, -1])
+        resume.append((mcmc, mcmc.last_state, arrays))
+    seconds = time.perf_counter() - started
+    return Posterior(
+        draws={k: np.concatenate([posterior.draws[k], np.concatenate(v)], axis=1)
+               for k, v in draws.items()},
+        num_steps=np.concatenate([posterior.num_steps, np.concatenate(steps)], axis=1),
+        warmup_num_steps=posterior.warmup_num_steps,
+        diverging=np.concatenate([posterior.diverging, np.concatenate(diverging)], axis=1),
+        step_size=np.concatenate(step_size), warmup_seconds=posterior.warmup_seconds,
+        sampling_seconds=posterior.sampling_seconds + seconds,
+        chain_method=posterior.chain_method, extensions=posterior.extensions + 1, resume=resume)
 
 
 _SMALL_PROBLEM = 30
@@ -697,6 +739,8 @@ def _run(mcmc, key, arrays: dict, init: dict | None, timed_warmup: bool) -> dict
     started = time.perf_counter()
     fields = ("num_steps", "diverging", "adapt_state.step_size")
     if not timed_warmup:
+        # a reused MCMC object keeps its last warm-up state, and run() would skip warm-up
+        mcmc.post_warmup_state = None
         mcmc.run(key, arrays, init_params=init, extra_fields=fields)
         warm_steps = np.zeros((chains, 0))
         warmed = None

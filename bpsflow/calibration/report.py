@@ -118,6 +118,7 @@ def diagnostics(run: CalibrationRun) -> dict | None:
         "converged": conv.converged, "reasons": conv.reasons,
         "chains": int(post.num_steps.shape[0]), "samples_per_chain": int(post.num_steps.shape[1]),
         "warmup_per_chain": int(post.warmup_num_steps.shape[1]),
+        "extensions": post.extensions,
         "chain_method": post.chain_method,
         "rhat_max": conv.rhat_max, "ess_bulk_min": conv.ess_bulk_min,
         "ess_tail_min": conv.ess_tail_min,

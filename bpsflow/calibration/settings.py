@@ -210,6 +210,11 @@ class BayesSettings(_Strict):
     noise), ``O(n m²)`` per step; ``auto`` is exact up to
     ``exact_max_observations`` observations.
 
+    ``extend``: while the draws miss ``rhat_max`` or ``ess_min`` (and
+    divergences are within ``divergence_max``), every chain draws ``samples``
+    more from where it stopped, up to ``extend`` times; warm-up is not
+    repeated. The report gives the draws per chain that convergence took.
+
     ``screen_effect`` drops from the sampler the calibration parameters whose
     largest effect on the emulator over their range is under this many
     standardised output units: the data cannot inform them, so their
@@ -240,6 +245,7 @@ class BayesSettings(_Strict):
     inducing_points: int = Field(default=32, ge=4)
     screen_effect: float = Field(default=0.01, ge=0)
     rhat_max: float = Field(default=1.01, gt=1)
+    extend: int = Field(default=0, ge=0, le=10)
     ess_min: float = Field(default=400, ge=0)
     divergence_max: float = Field(default=0.01, ge=0, le=1)
 

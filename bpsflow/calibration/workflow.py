@@ -21,6 +21,7 @@ import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -42,6 +43,9 @@ from bpsflow.calibration.settings import CalibrationSettings, Scenario
 from bpsflow.config import Config, Parameter, window_config
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_parquet, read_user_text, write_text_atomic
+
+if TYPE_CHECKING:   # bayes imports JAX, which a run without a posterior never needs
+    from bpsflow.calibration.bayes import Convergence, Posterior
 
 console = Console(stderr=True)
 
@@ -94,8 +98,8 @@ class CalibrationRun:
     deterministic: object
     effects: np.ndarray
     active: np.ndarray
-    posterior: object | None = None
-    convergence: object | None = None
+    posterior: Posterior | None = None
+    convergence: Convergence | None = None
     koh: object | None = None
     unit_draws: np.ndarray | None = None
     predictive: dict | None = None        # held-out GP predictive (output units)
@@ -527,6 +531,14 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
               "log_discrepancy_lengthscale": (list(emulator.scaling.x_columns) if bs.ard
                                               else ["log_discrepancy_lengthscale"])}
     convergence = bayes.assess(posterior, labels, bs)
+    while posterior.extensions < bs.extend and not convergence.converged \
+            and convergence.divergence_share <= bs.divergence_max:
+        # longer chains cure slow mixing (R-hat, ESS), not divergences
+        console.print(f"[{run.scenario.name}] NUTS not converged ("
+                      + "; ".join(convergence.reasons) + f"): every chain draws {bs.samples} "
+                      f"more (extension {posterior.extensions + 1} of {bs.extend})")
+        posterior = bayes.extend_posterior(posterior)
+        convergence = bayes.assess(posterior, labels, bs)
     run.posterior, run.convergence, run.koh, run.labels = posterior, convergence, data, labels
     run.timings["mcmc_seconds"] = posterior.seconds
     run.unit_draws = bayes.unit_draws(data, posterior, random_state=bs.seed)
