@@ -539,6 +539,8 @@ def _bayes(run: CalibrationRun, settings: CalibrationSettings, show_progress: bo
                       f"more (extension {posterior.extensions + 1} of {bs.extend})")
         posterior = bayes.extend_posterior(posterior)
         convergence = bayes.assess(posterior, labels, bs)
+    # the sampler's objects hold compiled code and the model's arrays: not kept per scenario
+    posterior = replace(posterior, resume=[])
     run.posterior, run.convergence, run.koh, run.labels = posterior, convergence, data, labels
     run.timings["mcmc_seconds"] = posterior.seconds
     run.unit_draws = bayes.unit_draws(data, posterior, random_state=bs.seed)
