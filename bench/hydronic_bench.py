@@ -16,6 +16,9 @@
   one after another (one XLA device), in two groups of two and all four at once (one device
   per chain), the demo's design and data (``hydronic_nuts_chain_groups``: one after another
   over the faster grouping, per scenario).
+* with ``--likelihood-gradient`` (after the demo): seconds per value and gradient of H-UI's
+  NUTS potential with the hand-written Woodbury gradient over JAX's through the Cholesky
+  factor (``hydronic_likelihood_gradient_ratio``).
 """
 
 from __future__ import annotations
@@ -212,6 +215,81 @@ def nuts_seconds(scenario_name: str, parallel_chains: int) -> tuple[float, float
     return run.timings["mcmc_seconds"], float(run.posterior.num_steps.mean())
 
 
+def likelihood_gradient(scenario_name: str = "H-UI") -> None:
+    """Seconds per value and gradient of one hourly scenario's NUTS potential, at its start.
+
+    The low-rank likelihood's Woodbury terms with their hand-written gradient
+    (:func:`bpsflow.calibration.bayes.woodbury_terms`) against JAX differentiating
+    through the Cholesky factor, on the demo's design and data, in one run.
+    """
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    import numpyro
+    from jax.scipy.linalg import solve_triangular
+    from numpyro.infer.util import initialize_model
+
+    from bpsflow.calibration import bayes
+
+    captured: dict = {}
+
+    class Captured(Exception):
+        pass
+
+    def capture(data, settings, init=None, **_):
+        captured.update(data=data, init={k: np.asarray(v)[0] for k, v in init.items()})
+        raise Captured
+
+    sample_posterior, hand = bayes.sample_posterior, bayes.woodbury_terms
+    bayes.sample_posterior = capture
+    try:
+        next(posterior_runs([scenario_name], {}, ROOT / HYDRONIC_MEASURED))
+    except Captured:
+        pass
+    finally:
+        bayes.sample_posterior = sample_posterior
+    data = captured["data"]
+    arrays = bayes.model_arrays(data)
+
+    def through_cholesky(w, scaled):
+        chol = jnp.linalg.cholesky(jnp.eye(w.shape[0]) + w @ w.T)
+        proj = solve_triangular(chol, w @ scaled, lower=True)
+        return 2.0 * jnp.sum(jnp.log(jnp.diag(chol))) - proj @ proj
+
+    def seconds(terms) -> tuple[float, list]:
+        bayes.woodbury_terms = terms
+        try:
+            model = bayes.make_model(data.ard, dict(data.priors), data.lowrank, data.n_noise,
+                                     data.n_discrepancy)
+            info = initialize_model(jax.random.PRNGKey(0), model, model_args=(arrays,),
+                                    init_strategy=numpyro.infer.init_to_value(
+                                        values=captured["init"]))
+            step = jax.jit(jax.value_and_grad(info.potential_fn))
+            jax.block_until_ready(step(info.param_info.z))
+            best = float("inf")
+            for _ in range(5):
+                started = time.perf_counter()
+                for _ in range(100):
+                    out = step(info.param_info.z)
+                jax.block_until_ready(out)
+                best = min(best, (time.perf_counter() - started) / 100)
+            return best, jax.tree.leaves(out[1])
+        finally:
+            bayes.woodbury_terms = hand
+
+    autodiff, autodiff_grad = seconds(through_cholesky)
+    written, written_grad = seconds(hand)
+    difference = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+                     for a, b in zip(autodiff_grad, written_grad))
+    record("hydronic_likelihood_gradient_ratio", written / autodiff, "ratio", "< 1",
+           "python bench/hydronic_bench.py --likelihood-gradient --skip-timing",
+           scenario=scenario_name, hand_written_ms=written * 1e3,
+           through_cholesky_ms=autodiff * 1e3, gradient_max_abs_difference=difference,
+           woodbury_rows=int(data.x_inducing.shape[0] + arrays["extra_factor"].shape[1]),
+           note="seconds per value and gradient of the NUTS potential at the chains' start, "
+           "best of 5 x 100, the demo's design and data (after make hydronic-demo)")
+
+
 def chain_groups() -> None:
     layouts = {"one_after_another_s": 1, "one_group_per_core_s": 2, "all_chains_at_once_s": 4}
     ratios, seconds = {}, {}
@@ -236,6 +314,8 @@ def main() -> None:
                         help="pool truth coverage over this many truths (after the demo)")
     parser.add_argument("--chain-groups", action="store_true",
                         help="time NUTS with chains grouped per core vs all at once")
+    parser.add_argument("--likelihood-gradient", action="store_true",
+                        help="time the hourly NUTS potential's gradient (after the demo)")
     parser.add_argument("--skip-timing", action="store_true", help="no EnergyPlus timings")
     args = parser.parse_args()
     command = "python bench/hydronic_bench.py"
@@ -254,6 +334,8 @@ def main() -> None:
         record_pooled([ROOT / "runs" / "hydronic_screened" / "calibration"] + extra)
     if args.chain_groups:
         chain_groups()
+    if args.likelihood_gradient:
+        likelihood_gradient()
 
 
 if __name__ == "__main__":

@@ -359,6 +359,52 @@ def _gaussian_log_density():
 _GAUSSIAN = None
 
 
+def woodbury_terms(w, scaled):
+    """``log det(I + W Wᵀ) − uᵀ (I + W Wᵀ)⁻¹ u``, ``u = W scaled``, with a hand-written gradient.
+
+    The two terms the low-rank likelihood adds to the diagonal one (Woodbury's
+    identity and the matrix determinant lemma). With ``A = I + W Wᵀ`` and
+    ``β = A⁻¹ u``: ``∂/∂W = 2 A⁻¹ W − 2 β scaledᵀ + 2 β βᵀ W`` and
+    ``∂/∂scaled = −2 Wᵀ β``. Differentiating through the Cholesky factor of
+    ``A`` instead cost most of a NUTS step on the hourly hydronic scenarios
+    (``A`` of 80-90 rows: 32 inducing inputs and the known error's columns).
+    """
+    return _woodbury_terms()(w, scaled)
+
+
+def _woodbury_terms():
+    import jax
+    import jax.numpy as jnp
+    from jax.scipy.linalg import cho_solve
+
+    global _WOODBURY
+    if _WOODBURY is not None:
+        return _WOODBURY
+
+    def forward(w, scaled):
+        chol = jnp.linalg.cholesky(jnp.eye(w.shape[0]) + w @ w.T)
+        u = w @ scaled
+        beta = cho_solve((chol, True), u)
+        return 2.0 * jnp.sum(jnp.log(jnp.diag(chol))) - u @ beta, (w, scaled, chol, beta)
+
+    @jax.custom_vjp
+    def terms(w, scaled):
+        return forward(w, scaled)[0]
+
+    def backward(saved, g):
+        w, scaled, chol, beta = saved
+        inverse_w = cho_solve((chol, True), w)                       # A⁻¹ W
+        grad_w = 2.0 * (inverse_w - jnp.outer(beta, scaled) + jnp.outer(beta, beta @ w))
+        return g * grad_w, -2.0 * g * (w.T @ beta)
+
+    terms.defvjp(forward, backward)
+    _WOODBURY = terms
+    return terms
+
+
+_WOODBURY = None
+
+
 def _cross_kernel(a, b, log_lengthscale, ard: bool):
     """Unit-variance squared exponential between rows of ``a`` and ``b`` (JAX)."""
     import jax.numpy as jnp
@@ -395,14 +441,10 @@ def lowrank_log_density(residual, diagonal, sd_delta, log_lengthscale, d: dict, 
     w = sd_delta * v / jnp.sqrt(diag)[None, :]                            # (m, n)
     if factor is not None:
         w = jnp.concatenate([w, factor.T / jnp.sqrt(diag)[None, :]])    # (m + r, n)
-        m = w.shape[0]
-    a = jnp.eye(m) + w @ w.T
-    chol_a = jnp.linalg.cholesky(a)
     scaled = residual / jnp.sqrt(diag)
-    proj = solve_triangular(chol_a, w @ scaled, lower=True)
-    quad = scaled @ scaled - proj @ proj
-    logdet = jnp.sum(jnp.log(diag)) + 2.0 * jnp.sum(jnp.log(jnp.diag(chol_a)))
-    return -0.5 * (quad + logdet + residual.shape[0] * jnp.log(2 * jnp.pi))
+    # log det(D + ...) = Σ log D + log det A; quad = sᵀs − uᵀ A⁻¹ u (A = I + W Wᵀ)
+    return -0.5 * (scaled @ scaled + jnp.sum(jnp.log(diag)) + woodbury_terms(w, scaled)
+                   + residual.shape[0] * jnp.log(2 * jnp.pi))
 
 
 def make_model(ard: bool, priors: dict[str, tuple[float, float]], lowrank: bool = False,
