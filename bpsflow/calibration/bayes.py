@@ -743,34 +743,45 @@ def extend_posterior(posterior: Posterior) -> Posterior:
     """
     if not posterior.resume:
         raise ValueError("this posterior keeps no sampler state to carry on from")
-    fields = ("num_steps", "diverging", "adapt_state.step_size")
-    draws: dict[str, list] = {k: [] for k in posterior.draws}
-    steps, diverging, step_size, resume = [], [], [], []
+    parts, resume = [], []
     started = time.perf_counter()
     for mcmc, last_state, arrays in posterior.resume:
-        chains = mcmc.num_chains
         mcmc.post_warmup_state = last_state
-        mcmc.run(last_state.rng_key, arrays, extra_fields=fields)
-        for k, v in mcmc.get_samples(group_by_chain=True).items():
-            draws[k].append(np.asarray(v))
-        extra = mcmc.get_extra_fields(group_by_chain=True)
-        steps.append(np.asarray(extra["num_steps"]).reshape(chains, -1))
-        diverging.append(np.asarray(extra["diverging"]).reshape(chains, -1))
-        step_size.append(np.asarray(extra["adapt_state.step_size"]).reshape(chains, -1)[:, -1])
+        mcmc.run(last_state.rng_key, arrays, extra_fields=_SAMPLE_FIELDS)
+        parts.append(_sampled(mcmc))
         resume.append((mcmc, mcmc.last_state, arrays))
     seconds = time.perf_counter() - started
+
+    def joined(name: str) -> np.ndarray:   # chain groups stacked, as sample_posterior does
+        return np.concatenate([p[name] for p in parts])
+
     return Posterior(
-        draws={k: np.concatenate([posterior.draws[k], np.concatenate(v)], axis=1)
-               for k, v in draws.items()},
-        num_steps=np.concatenate([posterior.num_steps, np.concatenate(steps)], axis=1),
+        draws={k: np.concatenate([posterior.draws[k],
+                                  np.concatenate([p["draws"][k] for p in parts])], axis=1)
+               for k in posterior.draws},
+        num_steps=np.concatenate([posterior.num_steps, joined("num_steps")], axis=1),
         warmup_num_steps=posterior.warmup_num_steps,
-        diverging=np.concatenate([posterior.diverging, np.concatenate(diverging)], axis=1),
-        step_size=np.concatenate(step_size), warmup_seconds=posterior.warmup_seconds,
+        diverging=np.concatenate([posterior.diverging, joined("diverging")], axis=1),
+        step_size=joined("step_size"), warmup_seconds=posterior.warmup_seconds,
         sampling_seconds=posterior.sampling_seconds + seconds,
         chain_method=posterior.chain_method, extensions=posterior.extensions + 1, resume=resume)
 
 
 _SMALL_PROBLEM = 30
+
+
+#: Sampler statistics collected with every draw.
+_SAMPLE_FIELDS = ("num_steps", "diverging", "adapt_state.step_size")
+
+
+def _sampled(mcmc) -> dict:
+    """The draws and statistics of an MCMC object's last sampling call, grouped by chain."""
+    chains = mcmc.num_chains
+    extra = mcmc.get_extra_fields(group_by_chain=True)
+    return {"draws": {k: np.asarray(v) for k, v in mcmc.get_samples(group_by_chain=True).items()},
+            "num_steps": np.asarray(extra["num_steps"]).reshape(chains, -1),
+            "diverging": np.asarray(extra["diverging"]).reshape(chains, -1),
+            "step_size": np.asarray(extra["adapt_state.step_size"]).reshape(chains, -1)[:, -1]}
 
 
 def _run(mcmc, key, arrays: dict, init: dict | None, timed_warmup: bool) -> dict:
@@ -779,11 +790,10 @@ def _run(mcmc, key, arrays: dict, init: dict | None, timed_warmup: bool) -> dict
 
     chains = mcmc.num_chains
     started = time.perf_counter()
-    fields = ("num_steps", "diverging", "adapt_state.step_size")
     if not timed_warmup:
         # a reused MCMC object keeps its last warm-up state, and run() would skip warm-up
         mcmc.post_warmup_state = None
-        mcmc.run(key, arrays, init_params=init, extra_fields=fields)
+        mcmc.run(key, arrays, init_params=init, extra_fields=_SAMPLE_FIELDS)
         warm_steps = np.zeros((chains, 0))
         warmed = None
     else:
@@ -792,15 +802,11 @@ def _run(mcmc, key, arrays: dict, init: dict | None, timed_warmup: bool) -> dict
         warm_steps = np.asarray(mcmc.get_extra_fields(group_by_chain=True)["num_steps"])
         jax.block_until_ready(mcmc.post_warmup_state)
         warmed = time.perf_counter()
-        mcmc.run(mcmc.post_warmup_state.rng_key, arrays, extra_fields=fields)
-    draws = {k: np.asarray(v) for k, v in mcmc.get_samples(group_by_chain=True).items()}
+        mcmc.run(mcmc.post_warmup_state.rng_key, arrays, extra_fields=_SAMPLE_FIELDS)
+    result = _sampled(mcmc)
     done = time.perf_counter()
     warmed = done if warmed is None else warmed
-    extra = mcmc.get_extra_fields(group_by_chain=True)
-    return {"draws": draws, "num_steps": np.asarray(extra["num_steps"]).reshape(chains, -1),
-            "warmup_num_steps": warm_steps.reshape(chains, -1),
-            "diverging": np.asarray(extra["diverging"]).reshape(chains, -1),
-            "step_size": np.asarray(extra["adapt_state.step_size"]).reshape(chains, -1)[:, -1],
+    return {**result, "warmup_num_steps": warm_steps.reshape(chains, -1),
             "warmup_seconds": warmed - started, "sampling_seconds": done - warmed}
 
 
