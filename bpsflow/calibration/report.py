@@ -137,6 +137,7 @@ def _block_record(hyper: Hyperparameters, x_columns: list[str], parameters: list
                   points: int) -> dict:
     """One emulator block's hyperparameters (seed eq. 20) and how they were fitted."""
     return {"signal_variance": hyper.signal_variance, "nugget": hyper.nugget,
+            "row_variance": hyper.row_variance,
             "lengthscales": {**dict(zip(x_columns, map(float, hyper.x_lengthscales))),
                              **dict(zip(parameters, map(float, hyper.t_lengthscales)))},
             "fit_points": points, "fit_seconds": hyper.fit_seconds,

@@ -138,9 +138,16 @@ class EmulatorSettings(_Strict):
     ``shared``: one GP over every output, the output type a variable input.
     Heating can want short length-scales on a leakage area where electricity
     wants long ones on everything but its loads; a shared kernel compromises.
+
+    ``fit`` is ``grid`` (default): the scattered-point fit is refined on the
+    whole grid of training runs × rows, with a row term: each row's own
+    response to θ, shared by the runs (an hour's heating depends on the
+    building's thermal history, which its variable inputs do not carry); or
+    ``points``: the scattered-point fit alone, the row term 0.
     """
 
     points: int = Field(default=840, ge=20)
+    fit: Literal["grid", "points"] = "grid"
     inputs: Literal["value", "unit"] = "value"
     hyperparameters: Literal["per_output", "shared"] = "per_output"
     test_fraction: float = Field(default=0.1, ge=0.0, lt=0.5)

@@ -416,7 +416,8 @@ def _calibrate_on(config: Config, settings: CalibrationSettings, scenario: Scena
                             design.unit[paired.instances], points=em.points,
                             test_fraction=em.test_fraction, restarts=em.restarts,
                             random_state=em.seed, inputs=inputs,
-                            per_output=em.hyperparameters == "per_output")
+                            per_output=em.hyperparameters == "per_output",
+                            grid_fit=em.fit == "grid")
     timings["emulator_seconds"] = time.perf_counter() - started
     if len(emulator.fit_points) < em.points:
         console.print(f"[{scenario.name}] note: calibration.emulator.points is {em.points}, "
