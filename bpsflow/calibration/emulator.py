@@ -301,7 +301,9 @@ def _squared_distances(a: np.ndarray) -> np.ndarray:
 
 
 def grid_negative_log_likelihood(log_parameters: np.ndarray, x: np.ndarray, t: np.ndarray,
-                                 y: np.ndarray) -> tuple[float, np.ndarray]:
+                                 y: np.ndarray, x_distances: np.ndarray | None = None,
+                                 t_distances: np.ndarray | None = None
+                                 ) -> tuple[float, np.ndarray]:
     """Negative log marginal likelihood of a whole ``runs × rows`` grid, and its gradient.
 
     The grid ``y`` (R, M) is modelled as ``vec(Y) ~ N(0, s² K_t ⊗ (K_x + τ² I)
@@ -327,6 +329,8 @@ def grid_negative_log_likelihood(log_parameters: np.ndarray, x: np.ndarray, t: n
     t : ndarray, shape (R, k)
     y : ndarray, shape (R, M)
         Standardised outputs.
+    x_distances, t_distances : ndarray, optional
+        ``_squared_distances(x)`` and ``(t)``, when the caller evaluates many times.
 
     Returns
     -------
@@ -357,10 +361,12 @@ def grid_negative_log_likelihood(log_parameters: np.ndarray, x: np.ndarray, t: n
     weight_t = (ut * ((rows_values[None, :] / d).sum(1))) @ ut.T \
         - (ut @ (a * rows_values[None, :]) @ a.T) @ ut.T
     weight_x = (ux * ((lam[:, None] / d).sum(0))) @ ux.T - (ux @ (a.T * lam[None, :]) @ a) @ ux.T
-    gradient[3:3 + d_x] = 0.5 * s2 * np.einsum(
-        "sij,ij->s", _squared_distances(x) / x_scales[:, None, None] ** 2, kx * weight_x)
-    gradient[3 + d_x:] = 0.5 * s2 * np.einsum(
-        "sij,ij->s", _squared_distances(t) / t_scales[:, None, None] ** 2, kt * weight_t)
+    x_distances = _squared_distances(x) if x_distances is None else x_distances
+    t_distances = _squared_distances(t) if t_distances is None else t_distances
+    gradient[3:3 + d_x] = 0.5 * s2 * np.einsum("sij,ij->s", x_distances, kx * weight_x) \
+        / x_scales ** 2
+    gradient[3 + d_x:] = 0.5 * s2 * np.einsum("sij,ij->s", t_distances, kt * weight_t) \
+        / t_scales ** 2
     return value, gradient
 
 
@@ -400,7 +406,8 @@ def fit_grid_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray,
                               np.log(np.clip(start.x_lengthscales, low, high)),
                               np.log(np.clip(start.t_lengthscales, low, high))])
     initial = np.clip(initial, [b[0] for b in bounds], [b[1] for b in bounds])
-    result = minimize(grid_negative_log_likelihood, initial, args=(x, t, y), jac=True,
+    result = minimize(grid_negative_log_likelihood, initial, jac=True,
+                      args=(x, t, y, _squared_distances(x), _squared_distances(t)),
                       method="L-BFGS-B", bounds=bounds)
     fitted = np.exp(result.x)
     note = (f"grid fit over {t.shape[0]} runs x {x.shape[0]} rows: log marginal likelihood "
