@@ -307,6 +307,50 @@ def chain_groups() -> None:
            "the demo's design and data")
 
 
+def emulator_fit(names: tuple[str, ...] = ("H-BI", "D-BI")) -> None:
+    """Hold-out error of the emulator fitted on the whole grid (row term) vs scattered points.
+
+    Both fits on the demo's design and data, the same training and test runs, one run;
+    records each output's hold-out RMSE (standardised) and the fit seconds.
+    """
+    from bpsflow.calibration import workflow
+    from bpsflow.config import load_config
+    from bpsflow.measured import read_measured
+
+    config = load_config(ROOT / "runs" / "hydronic_screened.yaml")
+    measured_path = ROOT / HYDRONIC_MEASURED
+    measured = read_measured(measured_path, config).frame
+    per_scenario: dict = {}
+    for fit in ("points", "grid"):
+        settings = workflow.settings_of(config)
+        settings.emulator = settings.emulator.model_copy(update={"fit": fit})
+        design = workflow.prepare_design(config, settings, ROOT / "runs" / "hydronic_screened"
+                                         / "calibration" / "design", "energyplus", 2, False)
+        for scenario in [s for s in settings.scenarios if s.name in names]:
+            started = time.perf_counter()
+            run = workflow.calibrate_scenario(config, settings, scenario, design, measured,
+                                              measured_path, "deterministic",
+                                              scratch("emulator-"), 2, None,
+                                              show_progress=False, physical_check=False)
+            test = run.emulator.test
+            per_scenario.setdefault(scenario.name, {})[fit] = {
+                "heldout_rmse_standardised": {o: v["mse_standardised"] ** 0.5
+                                              for o, v in test.per_output.items()},
+                "fit_seconds": sum(h.fit_seconds for h in run.emulator.hypers),
+                "scenario_seconds": time.perf_counter() - started}
+    ratios = {name: {o: fits["grid"]["heldout_rmse_standardised"][o]
+                     / fits["points"]["heldout_rmse_standardised"][o]
+                     for o in fits["grid"]["heldout_rmse_standardised"]}
+              for name, fits in per_scenario.items()}
+    hourly = next(name for name in names if name.startswith("H"))
+    record("hydronic_emulator_grid_fit_error_ratio", ratios[hourly]["heating_kwh"], "ratio",
+           "< 1", "python bench/hydronic_bench.py --emulator-fit --skip-timing",
+           per_scenario=per_scenario, ratios=ratios,
+           note="hold-out RMSE of the emulator fitted on the whole runs x rows grid with a "
+                "row term (calibration.emulator.fit: grid) / fitted on scattered points "
+                f"(points), {hourly} heating; same design, data and test runs, one run")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--demo", action="store_true", help="also time make hydronic-demo")
@@ -316,6 +360,8 @@ def main() -> None:
                         help="time NUTS with chains grouped per core vs all at once")
     parser.add_argument("--likelihood-gradient", action="store_true",
                         help="time the hourly NUTS potential's gradient (after the demo)")
+    parser.add_argument("--emulator-fit", action="store_true",
+                        help="emulator hold-out error, grid fit vs scattered points")
     parser.add_argument("--skip-timing", action="store_true", help="no EnergyPlus timings")
     args = parser.parse_args()
     command = "python bench/hydronic_bench.py"
@@ -336,6 +382,8 @@ def main() -> None:
         chain_groups()
     if args.likelihood_gradient:
         likelihood_gradient()
+    if args.emulator_fit:
+        emulator_fit()
 
 
 if __name__ == "__main__":
