@@ -643,7 +643,7 @@ def fit_emulator(x: pd.DataFrame, row_outputs: pd.Series, simulated: np.ndarray,
                  unit: np.ndarray, points: int = 840, test_fraction: float = 0.1,
                  restarts: int = 1, random_state: int = 0,
                  inputs: ParameterInputs | None = None, per_output: bool = True,
-                 grid_fit: bool = True) -> Emulator:
+                 grid_fit: bool = False) -> Emulator:
     """Fit and test the emulator on the simulations of every row.
 
     Parameters
