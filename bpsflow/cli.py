@@ -573,6 +573,9 @@ def sensitivity(
                                              "N inputs of each response, the others fixed."),
         screen_out: Path | None = typer.Option(None, dir_okay=False, help="Where --screen writes (default "
                                                   "<config stem>_screened.yaml beside CONFIG)."),
+        screen_ties: bool = typer.Option(False, "--screen-ties", help="With --screen N, also "
+                                         "keep each input whose mu* confidence interval "
+                                         "reaches the N-th input's (not told apart from it)."),
         allow_implausible: bool = AllowImplausibleOption,
         run_dir: Path | None = RunDirOption,
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar.")) -> None:
@@ -602,6 +605,8 @@ def sensitivity(
     if screen is not None and screen < 1:
         raise BpsflowError(f"--screen: expected a number of inputs to keep per response ≥ 1, "
                            f"got {screen}")
+    if screen_ties and screen is None:
+        raise BpsflowError("--screen-ties needs --screen N (how many inputs to keep per response)")
     if screen_out is not None and screen is None:
         raise BpsflowError("--screen-out needs --screen N (how many inputs to keep per response)")
     if kind == "raw" and measured is not None:
@@ -672,9 +677,10 @@ def sensitivity(
                       f"(see {md / 'manifest.parquet'})[/yellow]")
     if screen is not None:
         path, kept, fixed_names = morris.write_screened_config(cfg, indices, screen, screen_out,
-                                                               paths["indices"])
+                                                               paths["indices"], screen_ties)
         console.print(f"wrote {path}: keeps {len(kept)} input(s) (the top {screen} of each "
-                      f"response), fixes {len(fixed_names)} at their nominal value")
+                      "response" + (" and those tied with it" if screen_ties else "")
+                      + f"), fixes {len(fixed_names)} at their nominal value")
 
 
 @app.command()

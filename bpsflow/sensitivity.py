@@ -455,13 +455,26 @@ def plot_all(config: Config, indices: pd.DataFrame, out_dir: Path,
 
 # Screening -------------------------------------------------------------------
 
-def kept_parameters(indices: pd.DataFrame, top: int) -> list[str]:
-    """The union over responses of each response's ``top`` inputs by mu* (mu* > 0 only)."""
+def kept_parameters(indices: pd.DataFrame, top: int, ties: bool = False) -> list[str]:
+    """The union over responses of each response's ``top`` inputs by mu* (mu* > 0 only).
+
+    With ``ties``, a response also keeps every input whose mu* confidence interval
+    reaches that of its ``top``-th input (``mu*_i + conf_i >= mu*_top - conf_top``):
+    one its trajectories cannot tell apart from an input that is kept. Where mu*
+    falls from a few large inputs into a flat tail, a plain cut at ``top`` fixes
+    inputs as influential as the last one kept.
+    """
     if top < 1:
         raise BpsflowError(f"--screen: expected a number of inputs to keep per response ≥ 1, "
                            f"got {top}")
-    chosen = indices[(indices["rank"] <= top) & (indices["mu_star"] > 0)]
-    return list(dict.fromkeys(chosen.sort_values("rank", kind="stable")["parameter"]))
+    chosen = indices["rank"] <= top
+    if ties:
+        last = indices[indices["rank"] <= top].sort_values("rank").groupby("response").tail(1)
+        floor = (last["mu_star"] - last["mu_star_conf"]).set_axis(last["response"])
+        reach = indices["mu_star"] + indices["mu_star_conf"].fillna(0.0)
+        chosen |= reach >= indices["response"].map(floor).fillna(np.inf)
+    chosen &= indices["mu_star"] > 0
+    return list(dict.fromkeys(indices[chosen].sort_values("rank", kind="stable")["parameter"]))
 
 
 def _relative(path: Path, start: Path) -> str:
@@ -469,7 +482,7 @@ def _relative(path: Path, start: Path) -> str:
 
 
 def screened_config(config: Config, indices: pd.DataFrame, top: int, out_path: Path,
-                    indices_path: Path | None = None) -> dict[str, Any]:
+                    indices_path: Path | None = None, ties: bool = False) -> dict[str, Any]:
     """A reduced config that keeps the influential inputs and fixes the others (seed §3.4.8).
 
     The config ``extends:`` the original; every analysed parameter outside the
@@ -492,10 +505,12 @@ def screened_config(config: Config, indices: pd.DataFrame, top: int, out_path: P
         Where the reduced config will be written (relative paths are relative to it).
     indices_path : Path, optional
         The ``sensitivity.csv`` the decision came from, named in the provenance.
+    ties : bool
+        Also keep the inputs tied with each response's ``top``-th (:func:`kept_parameters`).
     """
     if config.source is None:
         raise BpsflowError("screening needs a config read from a file (for 'extends:')")
-    kept = set(kept_parameters(indices, top))
+    kept = set(kept_parameters(indices, top, ties))
     analysed = list(dict.fromkeys(indices["parameter"]))
     out_dir = Path(out_path).resolve().parent
     responses = indices["response"].nunique()
@@ -514,7 +529,9 @@ def screened_config(config: Config, indices: pd.DataFrame, top: int, out_path: P
         entry["provenance"] = {
             "method": "Morris screening (bpsflow sensitivity, seed §3.4.8)",
             "reason": f"not among the top {top} inputs by mu* of any of the {responses} "
-                      f"responses; fixed at its distribution's nominal (median)",
+                      + ("responses, nor tied with the last of them (mu* confidence "
+                         "intervals apart)" if ties else "responses")
+                      + "; fixed at its distribution's nominal (median)",
             "best_rank": int(best["rank"]), "best_rank_response": str(best["response"]),
             "max_mu_star": float(largest["mu_star"]),
             "max_mu_star_response": str(largest["response"]),
@@ -565,8 +582,8 @@ def check_screen_target(config: Config, out_path: Path | None) -> Path:
 
 
 def write_screened_config(config: Config, indices: pd.DataFrame, top: int,
-                          out_path: Path | None = None,
-                          indices_path: Path | None = None) -> tuple[Path, list[str], list[str]]:
+                          out_path: Path | None = None, indices_path: Path | None = None,
+                          ties: bool = False) -> tuple[Path, list[str], list[str]]:
     """Write :func:`screened_config` as YAML; check that it loads.
 
     Returns
@@ -577,12 +594,13 @@ def write_screened_config(config: Config, indices: pd.DataFrame, top: int,
     from bpsflow.config import load_config
 
     out_path = check_screen_target(config, out_path)
-    raw = screened_config(config, indices, top, out_path, indices_path)
+    raw = screened_config(config, indices, top, out_path, indices_path, ties)
     fixed_names = [p["name"] for p in raw.get("parameters", [])]
     kept = [n for n in dict.fromkeys(indices["parameter"]) if n not in fixed_names]
     out_path.parent.mkdir(parents=True, exist_ok=True)
     header = (f"{SCREENED_HEADER}{config.source.name}: {len(kept)} input(s) kept (the top "
-              f"{top} by mu* of each response),\n# {len(fixed_names)} fixed at their "
+              f"{top} by mu* of each response" + (" and those tied with it" if ties else "")
+              + f"),\n# {len(fixed_names)} fixed at their "
               f"nominal value (see each one's provenance). Written by bpsflow sensitivity.\n")
     write_text_atomic(out_path, header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True))
     load_config(out_path)  # a reduced config that does not load must not go unnoticed

@@ -19,6 +19,7 @@ from bpsflow.sensitivity import (
     GROUP_COLUMNS,
     INDEX_COLUMNS,
     grid_from_unit,
+    kept_parameters,
     morris_config,
     morris_design,
     morris_indices,
@@ -195,6 +196,23 @@ def test_screened_config_fixes_the_rest_at_nominal_and_loads(case, tmp_path):
     assert (design.values["thermostat_offset"] == 0.0).all()
 
 
+def test_screening_ties_keep_inputs_not_told_apart_from_the_last_kept():
+    """--screen N --screen-ties: mu* 0.34 ± 0.10 is the 2nd of response A; 0.28 ± 0.04
+    reaches 0.24 and is kept, 0.19 ± 0.04 does not; response B's tie is its own; a null
+    input (mu* 0) is never kept."""
+    indices = pd.DataFrame({
+        "response": ["A"] * 5 + ["B"] * 3,
+        "parameter": ["big", "second", "tied", "apart", "null", "b1", "b2", "b3"],
+        "mu_star": [2.6, 0.34, 0.28, 0.19, 0.0, 1.0, 0.5, 0.45],
+        "mu_star_conf": [0.7, 0.10, 0.04, 0.04, 0.5, 0.1, 0.02, 0.04],
+        "rank": [1, 2, 3, 4, 5, 1, 2, 3]})
+    assert kept_parameters(indices, 2) == ["big", "b1", "second", "b2"]
+    assert kept_parameters(indices, 2, ties=True) == ["big", "b1", "second", "b2", "tied",
+                                                      "b3"]
+    # a top that reaches past every input keeps them all but the null one
+    assert set(kept_parameters(indices, 9, ties=True)) == set(indices["parameter"]) - {"null"}
+
+
 def test_fixed_boundary_sampler_outside_the_sequences_is_refused(tmp_path):
     raw = short_raw(boundary_sequences=20)
     raw["parameters"] = [dict(p, distribution={"type": "constant", "value": 20})
@@ -263,6 +281,8 @@ def test_sensitivity_cli_bad_input_exits_2_before_running(tmp_path):
     assert result.exit_code == 2 and "--measured" in result.output
     result = runner.invoke(app, ["sensitivity", str(config), "--top", "0"])
     assert result.exit_code == 2 and "--top" in result.output
+    result = runner.invoke(app, ["sensitivity", str(config), "--screen-ties"])
+    assert result.exit_code == 2 and "--screen-ties needs --screen" in result.output
     measured = tmp_path / "measured.csv"
     case = load_config(config)
     hours = evaluation_hours(case.model.tests[0], case.model.year)
