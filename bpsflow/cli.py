@@ -678,9 +678,9 @@ def sensitivity(
     if screen is not None:
         path, kept, fixed_names = morris.write_screened_config(cfg, indices, screen, screen_out,
                                                                paths["indices"], screen_ties)
-        console.print(f"wrote {path}: keeps {len(kept)} input(s) (the top {screen} of each "
-                      "response" + (" and those tied with it" if screen_ties else "")
-                      + f"), fixes {len(fixed_names)} at their nominal value")
+        console.print(f"wrote {path}: keeps {len(kept)} input(s) "
+                      f"({morris.screen_rule(screen, screen_ties)}), fixes {len(fixed_names)} "
+                      "at their nominal value")
 
 
 @app.command()

@@ -469,12 +469,17 @@ def kept_parameters(indices: pd.DataFrame, top: int, ties: bool = False) -> list
                            f"got {top}")
     chosen = indices["rank"] <= top
     if ties:
-        last = indices[indices["rank"] <= top].sort_values("rank").groupby("response").tail(1)
+        last = indices[chosen].sort_values("rank").groupby("response").tail(1)
         floor = (last["mu_star"] - last["mu_star_conf"]).set_axis(last["response"])
         reach = indices["mu_star"] + indices["mu_star_conf"].fillna(0.0)
         chosen |= reach >= indices["response"].map(floor).fillna(np.inf)
     chosen &= indices["mu_star"] > 0
     return list(dict.fromkeys(indices[chosen].sort_values("rank", kind="stable")["parameter"]))
+
+
+def screen_rule(top: int, ties: bool = False) -> str:
+    """How :func:`kept_parameters` chose, in words (the reduced config's header, the CLI)."""
+    return f"the top {top} by mu* of each response" + (" and those tied with it" if ties else "")
 
 
 def _relative(path: Path, start: Path) -> str:
@@ -598,9 +603,8 @@ def write_screened_config(config: Config, indices: pd.DataFrame, top: int,
     fixed_names = [p["name"] for p in raw.get("parameters", [])]
     kept = [n for n in dict.fromkeys(indices["parameter"]) if n not in fixed_names]
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    header = (f"{SCREENED_HEADER}{config.source.name}: {len(kept)} input(s) kept (the top "
-              f"{top} by mu* of each response" + (" and those tied with it" if ties else "")
-              + f"),\n# {len(fixed_names)} fixed at their "
+    header = (f"{SCREENED_HEADER}{config.source.name}: {len(kept)} input(s) kept "
+              f"({screen_rule(top, ties)}),\n# {len(fixed_names)} fixed at their "
               f"nominal value (see each one's provenance). Written by bpsflow sensitivity.\n")
     write_text_atomic(out_path, header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True))
     load_config(out_path)  # a reduced config that does not load must not go unnoticed

@@ -400,15 +400,13 @@ def fit_grid_hyperparameters(x: np.ndarray, t: np.ndarray, y: np.ndarray,
 
     started = time.perf_counter()
     d_x, k = x.shape[1], t.shape[1]
-    low, high = _GRID_BOUNDS["lengthscale"]
-    bounds = [np.log(_GRID_BOUNDS[name]) for name in ("signal_variance", "row_variance",
-                                                        "nugget")]
-    bounds += [np.log((low, high))] * (d_x + k)
-    initial = np.concatenate([np.log([start.signal_variance, _ROW_VARIANCE_START,
-                                      max(start.nugget, _GRID_BOUNDS["nugget"][0])]),
-                              np.log(np.clip(start.x_lengthscales, low, high)),
-                              np.log(np.clip(start.t_lengthscales, low, high))])
-    initial = np.clip(initial, [b[0] for b in bounds], [b[1] for b in bounds])
+    bounds = np.log([_GRID_BOUNDS[name] for name in ("signal_variance", "row_variance",
+                                                     "nugget")]
+                    + [_GRID_BOUNDS["lengthscale"]] * (d_x + k))
+    # the scattered fit's optimum, moved inside the grid fit's bounds
+    initial = np.clip(np.log(np.concatenate([
+        [start.signal_variance, _ROW_VARIANCE_START, start.nugget],
+        start.x_lengthscales, start.t_lengthscales])), bounds[:, 0], bounds[:, 1])
     result = minimize(grid_negative_log_likelihood, initial, jac=True,
                       args=(x, t, y, _squared_distances(x), _squared_distances(t)),
                       method="L-BFGS-B", bounds=bounds, options={"maxiter": _GRID_ITERATIONS})
