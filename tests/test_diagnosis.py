@@ -586,6 +586,73 @@ def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(su
     assert nominal_only.objective > 10 * best.objective
 
 
+def test_a_candidate_that_only_moved_the_existing_parameters_continues_the_current_fit(
+        surrogate_base):
+    """A better fit that is not a cause sends the current model's own fit on from there.
+
+    The current model stopped in a local basin of a response periodic in its
+    parameter. A candidate whose own effect is below the smallest that matters
+    (or fitted at zero) yet beat the current model found the global basin by
+    moving the existing parameter: :func:`standing` flags it as a better fit
+    only, and :func:`_continue_fit` refits the current model from that
+    candidate's value of the existing parameter, which reaches the known truth.
+    A candidate that is a cause, or that does not improve, is never used so.
+    """
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.fitting import parameter_range
+    from bpsflow.diagnosis.workflow import Data, Model, _continue_fit, standing
+
+    assert standing(improves=True, at_zero=False, matters=False) == (False, True)
+    assert standing(improves=True, at_zero=True, matters=True) == (False, True)
+    assert standing(improves=True, at_zero=False, matters=True) == (True, False)
+    assert standing(improves=False, at_zero=False, matters=False) == (False, False)
+
+    config = load_config(surrogate_base)
+    parameter = next(p for p in config.parameters if p.name == "wall_stack_coefficient")
+    low, high = parameter_range(parameter)
+    truth = low + 0.83 * (high - low)
+    hours = np.arange(400)
+    wave = 2 * np.pi * hours / 24.0
+
+    def response(value: np.ndarray) -> np.ndarray:
+        unit = (value - low) / (high - low)
+        return 1000.0 + (100.0 + 300.0 * unit[:, None]) * np.cos(
+            wave[None, :] - 8 * np.pi * unit[:, None])
+
+    def simulate(samples: pd.DataFrame) -> np.ndarray:
+        return response(samples["wall_stack_coefficient"].to_numpy(dtype=float))
+
+    rng = np.random.default_rng(3)
+    measured = response(np.array([truth]))[0] + rng.normal(0, 2.0, hours.size)
+    calibration = hours < 300
+    data = Data(output="heating_power_w", timestamps=pd.DatetimeIndex([]), y=measured,
+                calibration=calibration, drivers=pd.DataFrame(), indoor=np.zeros(hours.size))
+    sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    stuck, near = fit_many(simulate, [
+        Problem(sample, [parameter], measured, calibration, {parameter.name: low}),
+        Problem(sample, [parameter], measured, calibration,
+                {parameter.name: truth + 0.02 * (high - low)})])
+    assert stuck.values[0] != pytest.approx(truth, abs=0.05 * (high - low))
+
+    context = SimpleNamespace(
+        data=data, notes=[],
+        fit=lambda config, label, problems: fit_many(simulate, problems),
+        sample_of=lambda config, fit=None: {**sample, **(fit.named if fit else {})})
+    current = Model(config, [parameter], stuck, "base")
+    result = SimpleNamespace(base=current, final=current, extensions=[])
+    _, only_better = standing(improves=True, at_zero=False, matters=False)
+    candidate = Model(config, [parameter], near, "round1_sliver")
+    continued = _continue_fit(context, result, current,
+                              [({"improves_fit": only_better, "bic": {"after": 0.0}}, candidate)], 1, quiet)
+    assert continued is not None
+    assert continued.fit.values[0] == pytest.approx(truth, abs=1e-3 * (high - low))
+    assert "continued" in context.notes[-1]
+    _, cause_flag = standing(improves=True, at_zero=False, matters=True)
+    assert _continue_fit(context, result, current,
+                         [({"improves_fit": cause_flag, "bic": {"after": 0.0}}, candidate)], 1, quiet) is None
+
+
 def test_a_shape_counts_as_forward_when_allowed_steps_fit_most_of_the_residual():
     """Two correlated law terms (C·V and D·V²): the free fit may give one a negative sign.
 

@@ -784,12 +784,16 @@ def _name_cause(result: Diagnosis, entry: dict) -> None:
 def _continue_fit(context: _Context, result: Diagnosis, current: Model,
                   entries: list[tuple[dict, Model | None]], round_number: int,
                   announce: Announce) -> Model | None:
-    """The current model refitted from a candidate fitted at zero that beat it, if any.
+    """The current model refitted from a candidate that beat it without being a cause, if any.
 
-    Such a candidate only moved the existing parameters (:func:`null_sized`):
-    the current model's own fit, continued from there, is the better model,
-    and the residuals are tested again. ``None`` when no such candidate
-    improved the fit significantly or the continued fit is no better.
+    A candidate fitted at zero (:func:`null_sized`), or one whose own effect
+    is below the smallest that matters while the fit improved significantly,
+    owes its gain to the existing parameters it moved: the current model's
+    own fit had stopped short of their better values (a nonlinear output, a
+    thermal mass, a start far off). The current model's fit, continued from
+    there, is the better model, and the residuals are tested again. ``None``
+    when no such candidate improved the fit significantly or the continued fit
+    is no better.
     """
     d = context.data
     better = [(e, m) for e, m in entries if m is not None and e.get("improves_fit")]
@@ -813,10 +817,11 @@ def _continue_fit(context: _Context, result: Diagnosis, current: Model,
     if result.final is not result.base:
         result.final = model
     _refitted_sizes(result, fit)
-    context.notes.append(f"round {round_number}: a candidate fitted at zero improved the fit "
-                         f"(BIC {before:.1f} -> {after:.1f}): the current model's fit had not "
+    context.notes.append(f"round {round_number}: a candidate that is not a cause (fitted at "
+                         f"zero, or with an effect too small to matter) improved the fit (BIC "
+                         f"{before:.1f} -> {after:.1f}): the current model's fit had not "
                          f"converged and was continued from there")
-    announce(f"the current model's fit is continued from a candidate fitted at zero: BIC "
+    announce(f"the current model's fit is continued from a candidate that is not a cause: BIC "
              f"{before:.1f} -> {after:.1f}")
     return model
 
@@ -1489,7 +1494,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         cal = d.calibration
         effect_rms = float(np.sqrt(np.mean(extension_effect(fit, new)[cal] ** 2)))
         matters = effect_rms >= settings.min_amplitude * abs(float(np.mean(d.y[cal])))
-        passed = improves and not at_zero and matters
+        passed, improves_fit = standing(improves, at_zero, matters)
         names = [p.name for p in fitted]
         screened_out = [(v[2]["screen_bic"], c.cause) for c, v in flat
                         if not any(c is other for other, *_ in chosen)]
@@ -1513,7 +1518,10 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                  "passed": passed, "iterations": fit.iterations,
                  "effect_rms": effect_rms,
                  **({"below_min_amplitude": True} if improves and not matters else {}),
-                 **({"at_zero": True, "improves_fit": improves} if at_zero else {}),
+                 **({"at_zero": True} if at_zero else {}),
+                 # not a cause, but a better fit: the existing parameters moved (see
+                 # _continue_fit)
+                 **({"improves_fit": True} if improves_fit else {}),
                  "files": str(extended.model.idf_objects[-1].parent), **detail}
         # the runner-up: the next cause fitted, or a screened-out one if its screen is lower
         others = [(float(bics[j]), chosen[j][0].cause, "fitted") for j in order if j != index]
@@ -1533,7 +1541,10 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                      f"{settings.cv_candidates})")
                  + (": passes the gates (only the round's best passing cause is accepted)"
                     if passed else ": rejected")
-                 + (" (fitted at zero: not a cause)" if at_zero else ""))
+                 + (" (fitted at zero: not a cause)" if at_zero else "")
+                 + (f" (its own effect, {effect_rms:.3g} rms, is below the smallest that "
+                    f"matters: the existing parameters made the gain)"
+                    if improves and not matters and not at_zero else ""))
         out.append((entry, Model(extended, fitted, fit, f"round{round_number}_{candidate.cause}")))
     for candidate, variant in flat:
         if not any(c is candidate for c, *_ in chosen) and variant is \
@@ -1587,6 +1598,24 @@ def extension_effect(fit: Fit, new: list[Parameter]) -> np.ndarray:
         column = names.index(p.name)
         effect += fit.jacobian[:, column] * (float(fit.values[column]) - nested)
     return effect
+
+
+def standing(improves: bool, at_zero: bool, matters: bool) -> tuple[bool, bool]:
+    """Whether a fitted candidate is a cause, and whether it is only a better fit.
+
+    A candidate passes when it improves on the current model (out-of-fold
+    encompassing test, BIC, CV(RMSE)), is not fitted at its nested value
+    (:func:`null_sized`) and its own effect matters (``min_amplitude``). One
+    that improves without being a cause owes the gain to the existing
+    parameters it moved: the second flag sends it to :func:`_continue_fit`.
+
+    Returns
+    -------
+    passed : bool
+    improves_fit : bool
+    """
+    passed = improves and not at_zero and matters
+    return passed, improves and not passed
 
 
 def null_sized(fit: Fit, new: list[Parameter]) -> bool:
