@@ -177,7 +177,7 @@ def _read_measured(path: Path, cfg, *, required=None, reference=None,
     data = read_measured(path, cfg, required=required, reference=reference,
                          allow_implausible=allow_implausible)
     for note in data.notes:
-        console.print(f"[yellow]{note}[/yellow]", highlight=False, soft_wrap=True)
+        console.print(f"[yellow]{escape(note)}[/yellow]", highlight=False, soft_wrap=True)
     return data
 
 
@@ -314,7 +314,7 @@ def check(config: Path = ConfigArg,
                   f"{report.boundary_targets} boundary targets; {len(cfg.model.tests)} tests in "
                   f"{len(cfg.model.periods)} run period(s){zones}", highlight=False)
     for note in report.notes:
-        err_console.print(f"[yellow]{note}[/yellow]", highlight=False)
+        err_console.print(f"[yellow]{escape(note)}[/yellow]", highlight=False)
 
 
 def _set_backend(cfg, backend: str | None) -> None:
@@ -394,8 +394,8 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
         raise typer.Exit(code=1)
     results = read_results(rd)
     figures = plot_bands(cfg, results, rd / "figures", observed) if len(results) else []
-    table = Table(title=f"{cfg.name}: {summary.ok}/{summary.total} instances ok "
-                        f"({summary.backend}, {summary.seconds:.1f} s)")
+    table = Table(title=escape(f"{cfg.name}: {summary.ok}/{summary.total} instances ok "
+                        f"({summary.backend}, {summary.seconds:.1f} s)"))
     for column in ("test", "output", "reports", "unit", "instances", "mean", "band_width"):
         table.add_column(column, justify="right" if column in ("instances", "mean", "band_width")
                          else "left", overflow="fold")
@@ -440,7 +440,7 @@ def synth(config: Path = ConfigArg,
         cfg.model.backend = backend
     spec = load_truth(truth, cfg)
     for note in truth_notes(cfg, spec):
-        err_console.print(f"[yellow]{truth.name}: {note}[/yellow]", highlight=False)
+        err_console.print(f"[yellow]{escape(f'{truth.name}: {note}')}[/yellow]", highlight=False)
     # the other config is read before anything runs: a bad one loses nothing
     simpler = _load(equivalent_for, None) if equivalent_for is not None else None
     rd = _lock(cfg)
@@ -512,8 +512,8 @@ def validate(config: Path = ConfigArg,
             v.row["notes"] = "; ".join(n for n in (v.row["notes"], gap) if n)
     paths = write_outputs(validations, rd, cfg.validation.q, measured=data.record())
     plot_bands(cfg, results, rd / "figures", observed)
-    table = Table(title=f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "
-                        f"{1 - cfg.validation.q:.0%}, CRPS {cfg.validation.estimator})")
+    table = Table(title=escape(f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "
+                        f"{1 - cfg.validation.q:.0%}, CRPS {cfg.validation.estimator})"))
     columns = ["test", "output", "metric", "threshold"] + (
         ["invalid_quantile", "type_ii_risk", "reduced_risk"] if invalid else []) + \
         ["nMCRPS / MCRPS", "CV(RMSE)", "NMBE", "G14"]
@@ -524,7 +524,7 @@ def validate(config: Path = ConfigArg,
         row = v.row
         temperature = row["metric"] == "MAE"
         cells = [row["test"], f"{row['output']} ({cfg.outputs[row['output']].label})",
-                 f"{row['metric']} [{row['metric_unit']}]", f"{row['threshold']:.4g}"]
+                 escape(f"{row['metric']} [{row['metric_unit']}]"), f"{row['threshold']:.4g}"]
         if invalid:
             cells += [f"{row['invalid_quantile']:.4g}", f"{row['type_ii_risk']:.1%}",
                       f"{row['reduced_risk']:.1%}"]
@@ -651,8 +651,8 @@ def sensitivity(
     for name, frame in indices.groupby("response", sort=False):
         output_unit = mcfg.outputs[name.split(":", 1)[1]].unit
         used = int(frame["trajectories"].iloc[0])
-        table = Table(title=f"{name}: Morris, {kind} response [{output_unit}], top {top} by mu* "
-                            f"({used} trajectories)")
+        table = Table(title=escape(f"{name}: Morris, {kind} response [{output_unit}], top {top} by mu* "
+                            f"({used} trajectories)"))
         for column in ("rank", "parameter", "group", "mu*", "mu*_conf", "mu", "sigma"):
             table.add_column(column, justify="left" if column in ("parameter", "group")
                              else "right", overflow="fold")
@@ -661,7 +661,7 @@ def sensitivity(
                           f"{row.mu_star_conf:.2g}", f"{row.mu:.3g}", f"{row.sigma:.3g}")
         console.print(table)
     if groups:
-        table = Table(title="mu* per parameter group")
+        table = Table(title=escape("mu* per parameter group"))
         for column in ("response", "group", "sum mu*", "max mu*", "top parameter", "count"):
             table.add_column(column, justify="right" if "mu*" in column or column == "count"
                              else "left", overflow="fold")
@@ -709,7 +709,7 @@ def refine(config: Path = ConfigArg,
         check_writable_file(refined_config, "--refined-config")
     refinement = run_refine(cfg, detailed)
     paths = write_refinement(refinement, out, refined_config)
-    table = Table(title=f"{cfg.name}: refined inputs, 90 % intervals (seed §3.5)")
+    table = Table(title=escape(f"{cfg.name}: refined inputs, 90 % intervals (seed §3.5)"))
     for column in ("parameter", "mode", "baseline", "refined", "width ratio"):
         table.add_column(column, justify="right" if column == "width ratio" else "left",
                          overflow="fold")
@@ -728,7 +728,7 @@ def refine(config: Path = ConfigArg,
                       f"({glazing['relative_bias_single_pane']:+.1%}; off-normal and diffuse "
                       f"light transmit less)")
     for message in refinement.skipped + refinement.notes:
-        console.print(f"[yellow]{message}[/yellow]", highlight=False)
+        console.print(f"[yellow]{escape(message)}[/yellow]", highlight=False)
     console.print(f"wrote {paths['config']}, {paths['json']}, {paths['convection_csv']} and "
                   f"figures in {out / 'figures'}")
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from bpsflow.calibration.settings import CalibrationSettings
@@ -102,7 +103,7 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
                          reference=plausibility_reference(config.run_dir.resolve()),
                          allow_implausible=allow_implausible)
     for note in data.notes:
-        console.print(f"[yellow]{note}[/yellow]", highlight=False)
+        console.print(f"[yellow]{escape(note)}[/yellow]", highlight=False)
     measured = data.frame
     if all_scenarios:
         if not settings.scenarios:
@@ -193,7 +194,7 @@ def print_run(run, console: Console) -> None:
 
     title = f"{run.scenario.name}: {run.method} calibration to {'+'.join(run.scenario.outputs)} " \
             f"({run.scenario.resolution}, {len(run.obs_rows)} observations)"
-    table = Table(title=title)
+    table = Table(title=escape(title))
     for column in ("parameter", "prior 90 %", "posterior 90 %", "contraction", "deterministic",
                    "truth"):
         table.add_column(column, justify="left" if column == "parameter" else "right")
@@ -211,7 +212,7 @@ def print_run(run, console: Console) -> None:
     console.print(table)
     for note in getattr(run.paired, "notes", []):
         # rows left out or subsampled: the table's counts and metrics rest on what is left
-        console.print(f"[yellow]{run.scenario.name}: {note}[/yellow]", highlight=False)
+        console.print(f"[yellow]{escape(f'{run.scenario.name}: {note}')}[/yellow]", highlight=False)
     bounded = [f"{e['name']} ({e['deterministic_at_bound']} end)"
                for e in parameter_table(run) if e["deterministic_at_bound"]]
     if bounded:
@@ -220,7 +221,7 @@ def print_run(run, console: Console) -> None:
                       "the prior range, or it compensates another input or a model error; "
                       "widen the prior or look for the cause before trusting it[/yellow]",
                       highlight=False)
-    held = Table(title=f"{run.scenario.name}: held-out accuracy (last days, never calibrated on)")
+    held = Table(title=escape(f"{run.scenario.name}: held-out accuracy (last days, never calibrated on)"))
     for column in ("model", "output", "resolution", "CV(RMSE) / RMSE", "NMBE / MBE",
                    "nMCRPS / MCRPS", "G14"):
         held.add_column(column, justify="left" if column in ("model", "output", "resolution")
@@ -277,8 +278,8 @@ def print_comparison(runs: list, console: Console) -> None:
     from bpsflow.calibration.scenarios import comparison_table
 
     frame = comparison_table(runs)
-    table = Table(title="data scenarios: posterior contraction and held-out accuracy "
-                        "(seed Table 4.1, Figures 4.8-4.9)")
+    table = Table(title=escape("data scenarios: posterior contraction and held-out accuracy "
+                        "(seed Table 4.1, Figures 4.8-4.9)"))
     table.add_column("column")
     for run in runs:
         table.add_column(run.scenario.name, justify="right")

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from rich.console import Console
+from rich.markup import escape
 
 from bpsflow.config import Config, IdfTarget, Parameter, config_fingerprint, window_config
 from bpsflow.decision.intervention import Intervention, load_intervention, week_dates
@@ -513,8 +514,6 @@ def _check_earlier_decision(out_dir: Path, fingerprint: str, source: Path) -> No
 
 def _tag(calibrated: Calibrated) -> str:
     """``[name]`` as text: a calibration's name printed as itself, not read as markup."""
-    from rich.markup import escape
-
     return escape(f"[{calibrated.name}]")
 
 
@@ -579,7 +578,7 @@ def decide(config: Config, calibration: Path, intervention_path: Path, *,
                            "give it with --measured")
     data = read_measured(Path(path), config, required=sorted({o.output for o in intervention.outcomes}))
     for note in data.notes:
-        console.print(f"[yellow]{note}[/yellow]", highlight=False)
+        console.print(f"[yellow]{escape(note)}[/yellow]", highlight=False)
     backend = choose_backend(config, console.print).name
     first, last = week_dates(intervention, config)
     _check_measured_week(data.frame, sorted({o.output for o in intervention.outcomes}), first,

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -147,7 +148,7 @@ def check_varies(config: Config, measured: pd.DataFrame, output: str, source: Pa
 
 def summary_table(result: Diagnosis) -> Table:
     """Held-out scores of the base model and of each candidate extension."""
-    table = Table(title=f"diagnosis of {result.output}: held-out block (never fitted)")
+    table = Table(title=escape(f"diagnosis of {result.output}: held-out block (never fitted)"))
     for column in ("model", "fitted", "CV(RMSE)", "nMCRPS", "NMBE", "accepted"):
         table.add_column(column, justify="left" if column in ("model", "fitted") else "right")
     held = result.scorecard["heldout"]
