@@ -212,3 +212,21 @@ def test_a_run_where_every_instance_fails_says_so_with_the_first_error(tmp_path,
     assert "Solar Transmittance" in result.output          # the .err excerpt
     assert "Traceback" not in result.output
     assert read_manifest(config.run_dir)["status"].tolist() == ["failed", "failed"]
+
+
+def test_an_idf_of_another_energyplus_release_is_named_with_what_to_do(tmp_path):
+    """A 24.1 file gets a note naming its version and the transition; 25.2 files none."""
+    from pathlib import Path
+
+    from bpsflow.simulation.energyplus import ENERGYPLUS_VERSION, version_mismatch
+
+    root = Path(__file__).resolve().parents[1]
+    for shipped in ("flexlab_x3b.idf", "hydronic_office.idf", "office3zone.idf"):
+        assert version_mismatch(root / "sample_idf" / shipped) is None
+    text = (root / "sample_idf" / "hydronic_office.idf").read_text()
+    older = tmp_path / "older.idf"
+    older.write_text(text.replace("Version,\n    25.2;", "Version,\n    24.1;  !- Version Identifier"))
+    note = version_mismatch(older)
+    assert note is not None
+    assert "older.idf" in note and "24.1" in note and ENERGYPLUS_VERSION in note
+    assert "transition" in note

