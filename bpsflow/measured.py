@@ -343,9 +343,13 @@ def _value_columns(header: list[str], stamp_column: str, config: Config,
                            source=path)
     for name in unknown:
         close = difflib.get_close_matches(name, list(config.outputs), n=1, cutoff=0.8)
+        if close and close[0] not in columns:
+            # the output it stands for is absent: a misspelling, whatever the command needs
+            raise BpsflowError(f"line 1: column '{name}' is not an output; did you mean "
+                               f"'{close[0]}'? (columns: {', '.join(columns)})", source=path)
         if close:
-            notes.append(f"{path.name}: column '{name}' is not an output (did you mean "
-                         f"'{close[0]}'?); read as an extra column")
+            notes.append(f"{path.name}: column '{name}' is not an output (close to "
+                         f"'{close[0]}', which is also there); read as an extra column")
     return columns
 
 

@@ -198,6 +198,13 @@ def test_missing_and_misspelled_output_columns(case):
                    "'heating_power_W' looks like 'heating_power_w'")
 
 
+def test_a_misspelled_output_column_is_an_error_where_no_column_is_required(case):
+    """``run --measured`` needs no particular output, yet a typo of one is no extra column."""
+    renamed = case.hourly.rename(columns={HEATING: "heating_power_W"})
+    _assert_fails_cleanly(case, case.write(renamed, "typo.csv"), "'heating_power_W'",
+                          f"did you mean '{HEATING}'", command="run", extra=("--no-progress",))
+
+
 def test_no_timestamp_column(case):
     renamed = case.hourly.reset_index().rename(columns={"timestamp": "time"})
     _assert_fails_cleanly(case, case.text(renamed.to_csv(index=False), "nostamp.csv"),
