@@ -139,6 +139,16 @@ def test_diagnosis_leaves_warm_up_days_out():
     assert data.timestamps[0] == pd.Timestamp("2017-02-20 01:00")      # after 7 warm-up days
     assert data.timestamps[-1] == pd.Timestamp("2017-03-27 00:00")
     assert len(data.timestamps) == 35 * 24
+    assert data.unmeasured == 0
+    # gaps inside the evaluated days are left out and counted (diagnose says so); one in a
+    # warm-up day is not evaluated anyway
+    holed = measured.copy()
+    gaps = pd.DatetimeIndex(["2017-02-14 05:00", "2017-02-21 10:00", "2017-03-01 11:00",
+                             "2017-03-01 12:00"])
+    holed.loc[gaps, "heating_kwh"] = np.nan
+    data = prepare(config, holed, DiagnosisSettings())
+    assert data.unmeasured == 3 and len(data.timestamps) == 35 * 24 - 3
+    assert not data.timestamps.isin(gaps).any()
 
 
 def _field_values(idf: Path, object_type: str, name_prefix: str, position: int,

@@ -308,11 +308,13 @@ class Data:
     calibration: np.ndarray       # bool: fitted hours (the rest is the held-out block)
     drivers: pd.DataFrame
     indoor: np.ndarray            # °C, for the wind × ΔT basis
+    unmeasured: int = 0           # evaluated hours without a measured value, left out
 
 
 def prepare(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings) -> Data:
     """Select the output, split calibration / held-out days, derive the drivers."""
     output = choose_output(config, measured, settings)
+    unmeasured = _unmeasured_hours(config, measured, output)
     series = measured[output].dropna()
     # warm-up days are simulated, not evaluated (as in validate and calibrate): the model's
     # start from its initial state is no evidence of what it lacks
@@ -336,7 +338,19 @@ def prepare(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings)
     drivers = derive_drivers(config.model.weather, timestamps, measured.loc[timestamps],
                              exclude=list(config.outputs))
     return Data(output, timestamps, series.to_numpy(dtype=float), calibration, drivers,
-                indoor_temperature(config, measured, timestamps))
+                indoor_temperature(config, measured, timestamps), unmeasured)
+
+
+def _unmeasured_hours(config: Config, measured: pd.DataFrame, output: str) -> int:
+    """Evaluated hours of the tests reporting ``output`` that have no measured value."""
+    from bpsflow.alignment import evaluation_hours
+
+    hours = [evaluation_hours(t, config.model.year) for t in config.model.tests
+             if output in t.outputs]
+    if not hours:
+        return 0
+    wanted = hours[0].append(hours[1:]).unique()
+    return int(measured[output].reindex(wanted).isna().sum())
 
 
 def diagnose(config: Config, measured: pd.DataFrame, out_dir: Path, *,
@@ -375,6 +389,11 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
     # told fails now, not after the base fit
     zones = {family: diagnosis_zone(config, data[0].output, family)
              for family in settings.extensions}
+    if data[0].unmeasured:
+        context.notes.append(f"{data[0].unmeasured} evaluated hour(s) of {data[0].output} have "
+                             f"no measured value and are left out of every fit and test "
+                             f"({len(data[0].timestamps)} hours used)")
+        announce(context.notes[-1])
     left_out = data[0].drivers.attrs.get("left_out", [])
     if left_out:
         context.notes.append(f"measured column(s) {', '.join(left_out)} left out of the "
