@@ -653,6 +653,30 @@ def test_a_candidate_that_only_moved_the_existing_parameters_continues_the_curre
                          [({"improves_fit": cause_flag, "bic": {"after": 0.0}}, candidate)], 1, quiet) is None
 
 
+def test_the_cause_names_a_driver_the_residual_tests_found():
+    """A gain block accepted on residuals whose significant drivers are irradiance: the
+    cause's driver is the strongest tested one, not the block's own calling driver."""
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.workflow import _tested_driver
+
+    result = SimpleNamespace(rounds=[
+        {"round": 1, "significant": ["incident_solar_west", "global_horizontal_radiation"],
+         "suggestive": []},
+        {"round": 2, "significant": ["hour_of_day"], "suggestive": []}])
+    gain = {"name": "internal_gain_schedule", "driver": "hour_of_day", "round": 1}
+    cause = {"driver": "hour_of_day", "extension": "internal_gain_schedule"}
+    _tested_driver(result, cause, [gain])
+    assert cause["driver"] == "incident_solar_west"
+    kept = {"driver": "hour_of_day", "extension": "internal_gain_schedule"}
+    _tested_driver(result, kept, [{**gain, "round": 2}])
+    assert kept["driver"] == "hour_of_day"
+    screened = SimpleNamespace(rounds=[{"round": 1, "significant": [], "suggestive": []}])
+    shape = {"driver": "hour_of_day", "extension": "thermal_mass"}
+    _tested_driver(screened, shape, [gain])        # a shape-screen round: nothing to prefer
+    assert shape["driver"] == "hour_of_day"
+
+
 def test_a_shape_counts_as_forward_when_allowed_steps_fit_most_of_the_residual():
     """Two correlated law terms (C·V and D·V²): the free fit may give one a negative sign.
 

@@ -2456,6 +2456,27 @@ def _short(block: dict) -> dict:
             "guideline14": block["guideline14"]}
 
 
+def _tested_driver(result: Diagnosis, cause: dict, accepted: list[dict]) -> None:
+    """The cause's driver as the residual tests found it, not as the candidate was called.
+
+    Once structure is found every candidate competes (a gain block may win on
+    residuals whose significant drivers are all irradiance), and a candidate
+    carries the driver it is usually called by. When that driver was not
+    significant (or suggestive) in the round the cause was accepted, the
+    strongest driver that was is named instead; the candidate's own stays in
+    its entry.
+    """
+    if not accepted:
+        return
+    number = accepted[0].get("round")
+    tested = next((r for r in result.rounds if r.get("round") == number), None)
+    if tested is None:
+        return
+    found = list(tested.get("significant", [])) + list(tested.get("suggestive", []))
+    if found and cause.get("driver") not in found:
+        cause["driver"] = found[0]
+
+
 def _finish(context: _Context, result: Diagnosis) -> None:
     """Verdict summary sentence and the overall held-out gain."""
     before = result.scorecard["heldout"]
@@ -2480,6 +2501,7 @@ def _finish(context: _Context, result: Diagnosis) -> None:
                             f"held-out CV(RMSE) {before['cvrmse']:.2%} -> {after['cvrmse']:.2%}.")
     elif cause.get("extension"):
         accepted = [e for e in result.extensions if e.get("accepted")]
+        _tested_driver(result, cause, accepted)
         cause["summary"] = (f"The residuals follow {cause['driver']}, which the model lacks: "
                             + ", ".join(f"{e.get('cause', e['name'])}{where_text(e)} "
                                         f"({e.get('law') or _fitted_text(e['fitted'])})"
