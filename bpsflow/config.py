@@ -211,6 +211,15 @@ class Test(_Strict):
                              "setpoint_c or setback_c (use mode heating or cooling)")
         if self.setback_c is not None and self.mode not in ("heating", "cooling"):
             raise ValueError("setback_c needs a heating or cooling test")
+        if self.setback_c is not None and self.setpoint_c is not None and (
+                (self.mode == "heating" and self.setback_c > self.setpoint_c)
+                or (self.mode == "cooling" and self.setback_c < self.setpoint_c)):
+            # a "setback" that heats more (cools more) than the setpoint is a swapped pair
+            raise ValueError(
+                f"setback_c ({self.setback_c:g} °C) is {'above' if self.mode == 'heating' else 'below'} "
+                f"setpoint_c ({self.setpoint_c:g} °C) of a {self.mode} test; expected a setback "
+                f"that {'lowers' if self.mode == 'heating' else 'raises'} the setpoint (setback_c "
+                f"{'<=' if self.mode == 'heating' else '>='} setpoint_c)")
         if self.warmup_days >= self.days:
             raise ValueError(f"warmup_days ({self.warmup_days}) must be fewer than days ({self.days})")
         return self

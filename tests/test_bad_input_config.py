@@ -171,6 +171,17 @@ def test_tests_under_other_control_may_not_share_a_day(tmp_path):
     assert result.exit_code == 0, result.output
 
 
+@pytest.mark.parametrize("mode,setpoint,setback,needle", [
+    ("heating", 21.0, 25.0, "is above setpoint_c (21 °C) of a heating test"),
+    ("cooling", 26.0, 20.0, "is below setpoint_c (26 °C) of a cooling test")])
+def test_a_setback_on_the_wrong_side_of_the_setpoint_is_refused(tmp_path, mode, setpoint,
+                                                                setback, needle):
+    raw = _surrogate_raw()
+    raw["model"]["tests"][0].update(mode=mode, setpoint_c=setpoint, setback_c=setback)
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "model.tests", "setback_c", needle)
+
+
 def test_an_odd_number_of_morris_levels_is_refused(tmp_path):
     raw = _surrogate_raw()
     raw["design"] = {"method": "morris", "levels": 3, "trajectories": 2}
