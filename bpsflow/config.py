@@ -993,11 +993,34 @@ def with_overlay(config: Config, overlay: Mapping[str, Any], source: Path,
         checked = Config.model_validate(merged)
     except ValidationError as exc:
         _, location, message = _first_problem(exc, merged)
-        raise BpsflowError(f"{where}.{location}: {message}", source=source) from None
+        raise BpsflowError(f"{where}.{_overlay_location(location, merged, child)}: {message}",
+                           source=source) from None
     checked.source = config.source
     if isinstance(overlay.get("model"), Mapping):
         _check_overlaid_model_files(checked.model, f"{where}.model", source)
     return checked
+
+
+def _overlay_location(location: str, merged: Mapping[str, Any], overlay: Mapping[str, Any]) -> str:
+    """``location`` in the merged config, with list positions counted in the overlay itself.
+
+    Merged lists of named entries (parameters) keep the base's order, so the
+    problem of the overlay's first parameter may sit at ``parameters[7]``;
+    the user wrote it as ``parameters[0]``.
+    """
+    import re
+
+    found = re.match(r"(\w+)\[(\d+)\]", location)
+    if found is None:
+        return location
+    key, position = found.group(1), int(found.group(2))
+    entries, own = merged.get(key), overlay.get(key)
+    if not isinstance(entries, list) or not isinstance(own, list) or position >= len(entries):
+        return location
+    name = entries[position].get("name") if isinstance(entries[position], Mapping) else None
+    mine = [i for i, entry in enumerate(own) if isinstance(entry, Mapping)
+            and entry.get("name") == name]
+    return f"{key}[{mine[0]}]{location[found.end():]}" if mine else location
 
 
 def _check_overlaid_model_files(model: Model, where: str, source: Path) -> None:

@@ -189,3 +189,21 @@ def test_a_window_keeps_the_tests_that_evaluate_its_days_each_after_its_warm_up(
         min(test_dates(t, year)[0] for t in kept.values()), last)
     with pytest.raises(BpsflowError, match="no test of model.tests evaluates"):
         window_config(config, date(year, 9, 1), date(year, 9, 7))
+
+
+def test_an_overlay_problem_is_named_at_its_position_in_the_overlay(tmp_path):
+    """The overlay's only parameter lacks its targets: it is parameters[0] of the overlay
+    the user wrote, wherever the merge puts it."""
+    from bpsflow.config import with_overlay
+    from bpsflow.errors import BpsflowError
+
+    config = load_config(I600)
+    last = config.parameters[-1].name
+    source = tmp_path / "intervention.yaml"
+    source.write_text("change: {}\n")
+    overlay = {"parameters": [{"name": last, "distribution": {"type": "constant", "value": 1.0}}]}
+    with pytest.raises(BpsflowError) as caught:
+        with_overlay(config, overlay, source, where="change.overlay")
+    assert f"change.overlay.parameters[0] ({last})" in str(caught.value)
+    assert len(config.parameters) > 1 and f"parameters[{len(config.parameters) - 1}]" \
+        not in str(caught.value)
