@@ -788,9 +788,14 @@ def _absolute_paths(raw: dict, base: Path) -> dict:
 
 
 def _merge(base: dict, child: dict, top: bool = True) -> dict:
-    """Deep-merge ``child`` over ``base``; top-level ``parameters`` merge by name (replace or append).
+    """Deep-merge ``child`` over ``base``; top-level ``parameters`` merge by name.
 
-    Other lists (e.g. ``diagnosis.parameters``, a list of names) are replaced.
+    A child parameter of a base parameter's name gives the keys it names
+    (``distribution``, ``targets``, ``mode``, ...), each replacing the base's
+    whole, and keeps the others: ``{name: x, distribution: {type: constant,
+    value: 1}}`` fixes ``x`` without repeating its targets. A new name is
+    appended. Other lists (e.g. ``diagnosis.parameters``, a list of names) are
+    replaced.
     """
     merged = copy.deepcopy(base)
     for key, value in child.items():
@@ -800,7 +805,9 @@ def _merge(base: dict, child: dict, top: bool = True) -> dict:
             for parameter in value:
                 name = parameter.get("name") if isinstance(parameter, dict) else None
                 if name in by_name:
-                    merged[key][by_name[name]] = parameter
+                    earlier = merged[key][by_name[name]]
+                    merged[key][by_name[name]] = {**earlier, **parameter} \
+                        if isinstance(earlier, dict) else parameter
                 else:
                     merged[key].append(parameter)
         elif key == "idf_objects" and isinstance(value, list) \

@@ -201,9 +201,25 @@ def test_an_overlay_problem_is_named_at_its_position_in_the_overlay(tmp_path):
     last = config.parameters[-1].name
     source = tmp_path / "intervention.yaml"
     source.write_text("change: {}\n")
-    overlay = {"parameters": [{"name": last, "distribution": {"type": "constant", "value": 1.0}}]}
+    overlay = {"parameters": [{"name": last,
+                               "distribution": {"type": "uniform", "lower": 2.0, "upper": 1.0}}]}
     with pytest.raises(BpsflowError) as caught:
         with_overlay(config, overlay, source, where="change.overlay")
     assert f"change.overlay.parameters[0] ({last})" in str(caught.value)
     assert len(config.parameters) > 1 and f"parameters[{len(config.parameters) - 1}]" \
         not in str(caught.value)
+
+
+def test_a_parameter_given_by_name_keeps_the_keys_it_does_not_give(tmp_path):
+    """An overlay or child config fixing a parameter need not repeat its targets."""
+    from bpsflow.config import with_overlay
+
+    config = load_config(I600)
+    base = config.parameters[-1]
+    source = tmp_path / "intervention.yaml"
+    source.write_text("change: {}\n")
+    changed = with_overlay(config, {"parameters": [
+        {"name": base.name, "distribution": {"type": "constant", "value": 1.0}}]}, source)
+    after = next(p for p in changed.parameters if p.name == base.name)
+    assert after.distribution.type == "constant" and after.targets == base.targets
+    assert after.mode == base.mode and len(changed.parameters) == len(config.parameters)
