@@ -662,9 +662,14 @@ def test_refinement_runs_posterior_draws_and_the_emulator_errs_less_where_the_po
         tmp_path):
     """With a design too thin for the emulator, runs at posterior draws are added and the
     posterior sampled again: the refined emulator's error at the next posterior's draws
-    (round 2's record) is below the first emulator's at the first posterior's (round 1)."""
+    (round 2's record) is below the first emulator's at the first posterior's (round 1).
+
+    Hourly rows, where each hour's response to θ is its own: at daily resolution this
+    two-input response is nearly linear, and ten runs already emulate it at the error
+    floor (both rounds about 0.002), so the comparison there would rest on noise."""
     config, measured, truth = _short_calibration_config(tmp_path, calibration={
-        "design": {"runs": 10, "seed": 3}, "refinement": {"runs": 10, "rounds": 2, "seed": 1}})
+        "design": {"runs": 10, "seed": 3}, "refinement": {"runs": 10, "rounds": 2, "seed": 1},
+        "resolution": "hourly"})
     result = CliRunner().invoke(app, ["calibrate", str(config), "--measured", str(measured),
                                       "--truth", str(truth), "--no-progress",
                                       "--allow-unconverged"])
