@@ -282,6 +282,7 @@ def check(config: Path = ConfigArg,
     On EnergyPlus the nominal model then runs once over two days of the first test
     (--no-run skips it); nothing is written to the run directory.
     """
+    from bpsflow.distributions import truncation_notes
     from bpsflow.simulation.backend import choose_backend
     from bpsflow.simulation.target_bounds import inert_targets
 
@@ -295,6 +296,7 @@ def check(config: Path = ConfigArg,
 
         check_diagnosis_settings(cfg, cfg.diagnosis)
     report.notes.extend(inert_targets(cfg))
+    report.notes.extend(truncation_notes(cfg.parameters))
     if report.controlled_zones:
         from bpsflow.simulation.idf import model_objects
         from bpsflow.simulation.setpoints import sizing_note

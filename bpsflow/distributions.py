@@ -15,6 +15,7 @@ The ``type`` key selects the distribution in YAML::
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -303,3 +304,27 @@ Distribution = Annotated[
     Uniform | Normal | Beta | LogNormal | Triangular | Discrete | Empirical | Sampler | Constant,
     Field(discriminator="type"),
 ]
+
+
+def truncation_notes(parameters: Sequence) -> list[str]:
+    """A note per truncated normal whose mean lies outside its own bounds.
+
+    Valid (the bounds hold probability mass) but rarely meant: the draws are
+    one tail, piled up at the bound nearest the mean, and the ``mean`` key no
+    longer says where they are.
+    """
+    notes = []
+    for index, parameter in enumerate(parameters):
+        d = parameter.distribution
+        if not isinstance(d, Normal):
+            continue
+        below = d.lower is not None and d.mean < d.lower
+        above = d.upper is not None and d.mean > d.upper
+        if below or above:
+            median = float(d.ppf(np.array([0.5]))[0])
+            notes.append(f"parameters[{index}] ({parameter.name}): the normal's mean {d.mean:g} "
+                         f"is {'below' if below else 'above'} its bounds [{d.lower}, {d.upper}]: "
+                         f"the draws are one tail of it, piled at "
+                         f"{d.lower if below else d.upper} (median {median:.4g})")
+    return notes
+

@@ -223,3 +223,18 @@ def test_a_parameter_given_by_name_keeps_the_keys_it_does_not_give(tmp_path):
     after = next(p for p in changed.parameters if p.name == base.name)
     assert after.distribution.type == "constant" and after.targets == base.targets
     assert after.mode == base.mode and len(changed.parameters) == len(config.parameters)
+
+
+def test_a_normal_whose_mean_is_outside_its_bounds_is_said_by_check(tmp_path):
+    raw = short_raw()
+    first = raw["parameters"][0]
+    first["distribution"] = {"type": "normal", "mean": 1.0, "std": 0.4, "lower": 1.5,
+                             "upper": 2.0}
+    result = runner.invoke(app, ["check", str(write_config(tmp_path, raw)), "--no-run"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0, result.output
+    assert f"parameters[0] ({first['name']}): the normal's mean 1 is below its bounds" in text
+    raw["parameters"][0]["distribution"].update(lower=0.8, upper=1.2)
+    (tmp_path / "inside").mkdir()
+    result = runner.invoke(app, ["check", str(write_config(tmp_path / "inside", raw)), "--no-run"])
+    assert result.exit_code == 0 and "is below its bounds" not in result.output
