@@ -270,6 +270,31 @@ def _sample(cfg) -> Path:
 
 @app.command()
 @_friendly
+def keys(section: str = typer.Argument("", help="only the keys under this one, e.g. diagnosis")
+         ) -> None:
+    """Every config key with its type and default, read from the schema configs are checked against."""
+    from bpsflow.config import Config
+    from bpsflow.schema import config_keys
+
+    every = config_keys(Config)
+    rows = [row for row in every if not section or row[0] == section
+            or row[0].startswith((f"{section}.", f"{section}[", f"{section}("))]
+    if not rows:
+        sections = sorted({key.split(".")[0].split("[")[0] for key, _, _ in every})
+        raise BpsflowError(f"keys: no config key '{section}'; expected a key such as "
+                           f"{', '.join(sections)} (or diagnosis.holdout_days, ...)")
+    table = Table(title=escape(f"config keys{f' under {section}' if section else ''} (list "
+                               f"items key[], named entries key.<name>)"))
+    table.add_column("key", no_wrap=True)
+    for column in ("type", "default"):
+        table.add_column(column, overflow="fold")
+    for key, kind, default in rows:
+        table.add_row(escape(key), escape(kind), escape(default))
+    console.print(table)
+
+
+@app.command()
+@_friendly
 def check(config: Path = ConfigArg,
           backend: str | None = BackendOption,
           run: bool = typer.Option(True, "--run/--no-run",

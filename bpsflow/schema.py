@@ -80,3 +80,81 @@ def _expected(annotation: Any) -> str:
         args = typing.get_args(annotation)
         return f"a mapping to {_expected(args[1])}" if len(args) == 2 else "a mapping"
     return "a value of another type"
+
+
+def _type_text(annotation: Any) -> str:
+    """A YAML reader's name for a field type: ``number``, ``list of name``, ``a | b``."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if annotation is type(None):
+        return "null"
+    if origin is typing.Annotated:
+        return _type_text(args[0])
+    if origin is typing.Literal:
+        return " | ".join(str(a) for a in args)
+    if origin in (Union, types.UnionType):
+        parts = [part for a in args for part in _type_text(a).split(" | ")]
+        return " | ".join(dict.fromkeys(parts))
+    if origin in (list, tuple, set, frozenset):
+        return f"list of {_type_text(args[0])}" if args else "list"
+    if origin is dict:
+        return f"mapping of {_type_text(args[1])}" if len(args) == 2 else "mapping"
+    if _is_model(annotation):
+        return "section"
+    names = {int: "integer", float: "number", str: "text", bool: "true | false", Any: "any"}
+    if getattr(annotation, "__name__", "").endswith("Path"):
+        return "path"
+    return names.get(annotation, getattr(annotation, "__name__", str(annotation)))
+
+
+def _models_in(annotation: Any) -> list[tuple[str, type[BaseModel]]]:
+    """The sections a field holds, each with the suffix its keys get (``[]``, ``.<name>``)."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if _is_model(annotation):
+        return [("", annotation)]
+    if origin is typing.Annotated:
+        return _models_in(args[0])
+    if origin in (Union, types.UnionType):
+        found = [m for a in args for m in _models_in(a)]
+        if len(found) > 1:   # a tagged union (a distribution): each variant under its type
+            return [(f"{suffix}({_variant_tag(model)})", model) for suffix, model in found]
+        return found
+    if origin in (list, tuple, set, frozenset) and args:
+        return [(f"[]{suffix}", model) for suffix, model in _models_in(args[0])]
+    if origin is dict and len(args) == 2:
+        return [(f".<name>{suffix}", model) for suffix, model in _models_in(args[1])]
+    return []
+
+
+def _variant_tag(model: type[BaseModel]) -> str:
+    field = model.model_fields.get("type")
+    if field is not None and typing.get_origin(field.annotation) is typing.Literal:
+        return f"type: {typing.get_args(field.annotation)[0]}"
+    return model.__name__
+
+
+def config_keys(model: type[BaseModel], prefix: str = "") -> list[tuple[str, str, str]]:
+    """Every key of a schema, depth first: ``(key path, type, default)``.
+
+    Read from the pydantic models themselves, so the listing is the schema
+    the files are validated against (``bpsflow keys``). A section's keys
+    follow it; list items are ``key[]``, mapping entries ``key.<name>``, and
+    the variants of a tagged union (the distributions) ``key(type: ...)``.
+    """
+    from pydantic_core import PydanticUndefined
+
+    rows = []
+    for name, field in model.model_fields.items():
+        if field.exclude:
+            continue
+        path = f"{prefix}{name}"
+        if field.default is not PydanticUndefined:
+            default = "null" if field.default is None else repr(field.default)
+        elif field.default_factory is not None:
+            made = field.default_factory()     # type: ignore[call-arg]
+            default = "(its keys' defaults)" if isinstance(made, BaseModel) else repr(made)
+        else:
+            default = "required"
+        rows.append((path, _type_text(field.annotation), default))
+        for suffix, inner in _models_in(field.annotation):
+            rows += config_keys(inner, f"{path}{suffix}.")
+    return rows

@@ -238,3 +238,24 @@ def test_a_normal_whose_mean_is_outside_its_bounds_is_said_by_check(tmp_path):
     (tmp_path / "inside").mkdir()
     result = runner.invoke(app, ["check", str(write_config(tmp_path / "inside", raw)), "--no-run"])
     assert result.exit_code == 0 and "is below its bounds" not in result.output
+
+
+def test_keys_lists_the_schema_with_types_and_defaults():
+    """``bpsflow keys`` reads the pydantic schema: keys only shown by example are listed."""
+    from bpsflow.config import Config
+    from bpsflow.diagnosis.settings import DiagnosisSettings
+    from bpsflow.schema import config_keys
+
+    rows = {key: (kind, default) for key, kind, default in config_keys(Config)}
+    assert rows["diagnosis.holdout_days"] == ("integer", "7")
+    assert rows["model.year"] == ("integer", "2025")
+    assert rows["model.tests[].setback_start_hour"] == ("integer", "18")
+    assert rows["parameters[].distribution(type: normal).std"][1] == "required"
+    assert rows["outputs.<name>.unit"][0] == "text"
+    # every diagnosis setting, whatever is added later
+    assert {f"diagnosis.{name}" for name in DiagnosisSettings.model_fields} <= set(rows)
+    result = runner.invoke(app, ["keys", "calibration.bayes"])
+    assert result.exit_code == 0, result.output
+    assert "calibration.bayes.chains" in result.output and "model.year" not in result.output
+    result = runner.invoke(app, ["keys", "diagnostics"])
+    assert result.exit_code == 2 and "no config key 'diagnostics'" in result.output
