@@ -544,15 +544,17 @@ def test_a_jacobian_run_only_for_accepted_steps_gives_the_same_fits_for_fewer_ru
     assert sum(rows) < eager_rows and len(rows) > eager_calls
 
 
-def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(surrogate_base):
-    """A response periodic in its parameter has many local minima of the squared error.
+def _periodic_problem(surrogate_base):
+    """A response periodic in one parameter: 4 basins of the squared error, one true.
 
-    From the nominal value alone the Levenberg–Marquardt search stops in the
-    nearest one; the screened starts of :func:`starting_points` reach the
-    true value (known: the data are the model at it, plus small noise).
+    The phase turns 4 times over the range while the amplitude grows, so only
+    one basin holds the data's value (the truth, at 0.83 of the range, plus
+    small noise); a local search from elsewhere stops in another.
     """
+    from types import SimpleNamespace
+
     from bpsflow.diagnosis.fitting import parameter_range
-    from bpsflow.diagnosis.workflow import Data, starting_points
+    from bpsflow.diagnosis.workflow import Data
 
     config = load_config(surrogate_base)
     parameter = next(p for p in config.parameters if p.name == "wall_stack_coefficient")
@@ -562,8 +564,6 @@ def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(su
     wave = 2 * np.pi * hours / 24.0
 
     def response(value: np.ndarray) -> np.ndarray:
-        # the phase turns 4 times over the range (4 basins of the squared error) while
-        # the amplitude grows, so only one basin holds the data's value
         unit = (value - low) / (high - low)
         return 1000.0 + (100.0 + 300.0 * unit[:, None]) * np.cos(
             wave[None, :] - 8 * np.pi * unit[:, None])
@@ -571,12 +571,30 @@ def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(su
     def simulate(samples: pd.DataFrame) -> np.ndarray:
         return response(samples["wall_stack_coefficient"].to_numpy(dtype=float))
 
-    rng = np.random.default_rng(3)
-    measured = response(np.array([truth]))[0] + rng.normal(0, 2.0, hours.size)
+    measured = response(np.array([truth]))[0] + np.random.default_rng(3).normal(0, 2.0,
+                                                                               hours.size)
     calibration = hours < 300
     data = Data(output="heating_power_w", timestamps=pd.DatetimeIndex([]), y=measured,
                 calibration=calibration, drivers=pd.DataFrame(), indoor=np.zeros(hours.size))
     sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    return SimpleNamespace(config=config, parameter=parameter, low=low, high=high, truth=truth,
+                           simulate=simulate, measured=measured, calibration=calibration,
+                           data=data, sample=sample)
+
+
+def test_base_fit_starts_find_the_global_minimum_that_one_local_search_misses(surrogate_base):
+    """A response periodic in its parameter has many local minima of the squared error.
+
+    From the nominal value alone the Levenberg–Marquardt search stops in the
+    nearest one; the screened starts of :func:`starting_points` reach the
+    true value (known: the data are the model at it, plus small noise).
+    """
+    from bpsflow.diagnosis.workflow import starting_points
+
+    problem = _periodic_problem(surrogate_base)
+    parameter, truth, low, high = problem.parameter, problem.truth, problem.low, problem.high
+    simulate, measured, calibration = problem.simulate, problem.measured, problem.calibration
+    data, sample = problem.data, problem.sample
     starts = starting_points(simulate, sample, [parameter], [data], screen=16, keep=3, seed=0)
     assert starts[0][0] is None and len(starts[0]) == 4
     fits = fit_many(simulate, [Problem(sample, [parameter], measured, calibration, start)
@@ -600,35 +618,18 @@ def test_a_candidate_that_only_moved_the_existing_parameters_continues_the_curre
     """
     from types import SimpleNamespace
 
-    from bpsflow.diagnosis.fitting import parameter_range
-    from bpsflow.diagnosis.workflow import Data, Model, _continue_fit, standing
+    from bpsflow.diagnosis.workflow import Model, _continue_fit, standing
 
     assert standing(improves=True, at_zero=False, matters=False) == (False, True)
     assert standing(improves=True, at_zero=True, matters=True) == (False, True)
     assert standing(improves=True, at_zero=False, matters=True) == (True, False)
     assert standing(improves=False, at_zero=False, matters=False) == (False, False)
 
-    config = load_config(surrogate_base)
-    parameter = next(p for p in config.parameters if p.name == "wall_stack_coefficient")
-    low, high = parameter_range(parameter)
-    truth = low + 0.83 * (high - low)
-    hours = np.arange(400)
-    wave = 2 * np.pi * hours / 24.0
-
-    def response(value: np.ndarray) -> np.ndarray:
-        unit = (value - low) / (high - low)
-        return 1000.0 + (100.0 + 300.0 * unit[:, None]) * np.cos(
-            wave[None, :] - 8 * np.pi * unit[:, None])
-
-    def simulate(samples: pd.DataFrame) -> np.ndarray:
-        return response(samples["wall_stack_coefficient"].to_numpy(dtype=float))
-
-    rng = np.random.default_rng(3)
-    measured = response(np.array([truth]))[0] + rng.normal(0, 2.0, hours.size)
-    calibration = hours < 300
-    data = Data(output="heating_power_w", timestamps=pd.DatetimeIndex([]), y=measured,
-                calibration=calibration, drivers=pd.DataFrame(), indoor=np.zeros(hours.size))
-    sample = {p.name: float(p.distribution.nominal) for p in config.parameters}
+    problem = _periodic_problem(surrogate_base)
+    config, parameter, truth = problem.config, problem.parameter, problem.truth
+    low, high, simulate = problem.low, problem.high, problem.simulate
+    measured, calibration, data, sample = (problem.measured, problem.calibration, problem.data,
+                                           problem.sample)
     stuck, near = fit_many(simulate, [
         Problem(sample, [parameter], measured, calibration, {parameter.name: low}),
         Problem(sample, [parameter], measured, calibration,
