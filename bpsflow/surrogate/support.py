@@ -38,6 +38,10 @@ _KNOWN = set(FIELDS) | {
 _IGNORED_PREFIXES = ("OUTPUT", "METER:")
 
 
+#: Object types named in the "no physics for" phrase; the rest are counted.
+_LISTED_TYPES = 12
+
+
 def unsupported_features(config: Config) -> list[str]:
     """Every feature of ``config``'s model and outputs the surrogate cannot represent.
 
@@ -68,8 +72,13 @@ def unsupported_features(config: Config) -> list[str]:
     types = Counter(o.spelling or o.type for o in idf.objects
                     if o.type not in _KNOWN and not o.type.startswith(_IGNORED_PREFIXES))
     if types:
-        lacking.append("no physics for " + ", ".join(
-            f"{kind} ({n})" for kind, n in sorted(types.items())))
+        # the kinds most objects belong to first; a long tail is counted, not listed
+        ranked = sorted(types.items(), key=lambda item: (-item[1], item[0]))
+        shown = ", ".join(f"{kind} ({n})" for kind, n in ranked[:_LISTED_TYPES])
+        rest = ranked[_LISTED_TYPES:]
+        lacking.append("no physics for " + shown + (
+            f" and {len(rest)} more object types ({sum(n for _, n in rest)} objects)"
+            if rest else ""))
     lacking += _output_features(config)
     own = [t.name for t in config.model.tests if t.mode == "model"]
     if own:
