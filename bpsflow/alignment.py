@@ -39,6 +39,13 @@ def evaluation_hours(test: Test, year: int) -> pd.DatetimeIndex:
                          pd.Timestamp(last) + pd.Timedelta(days=1), freq="h")
 
 
+def output_evaluation_hours(config: Config, output: str) -> pd.DatetimeIndex:
+    """Hour-ending timestamps evaluated for ``output``: every reporting test's, each once."""
+    hours = [evaluation_hours(test, config.model.year) for test in config.model.tests
+             if output in test.outputs]
+    return hours[0].append(hours[1:]).unique() if hours else pd.DatetimeIndex([])
+
+
 def align(config: Config, results: pd.DataFrame, measured: pd.DataFrame, test: Test,
           output: str, measured_source: Path | str | None = None) -> Aligned:
     """Observations and ensemble members of ``output`` over ``test``'s evaluated hours.

@@ -688,7 +688,7 @@ def sensitivity(
                           f"{row.mu_star_conf:.2g}", f"{row.mu:.3g}", f"{row.sigma:.3g}")
         console.print(table)
     if groups:
-        table = Table(title=escape("mu* per parameter group"))
+        table = Table(title="mu* per parameter group")
         for column in ("response", "group", "sum mu*", "max mu*", "top parameter", "count"):
             table.add_column(column, justify="right" if "mu*" in column or column == "count"
                              else "left", overflow="fold")

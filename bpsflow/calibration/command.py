@@ -278,8 +278,8 @@ def print_comparison(runs: list, console: Console) -> None:
     from bpsflow.calibration.scenarios import comparison_table
 
     frame = comparison_table(runs)
-    table = Table(title=escape("data scenarios: posterior contraction and held-out accuracy "
-                        "(seed Table 4.1, Figures 4.8-4.9)"))
+    table = Table(title="data scenarios: posterior contraction and held-out accuracy "
+                        "(seed Table 4.1, Figures 4.8-4.9)")
     table.add_column("column")
     for run in runs:
         table.add_column(run.scenario.name, justify="right")

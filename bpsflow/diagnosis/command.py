@@ -133,11 +133,10 @@ def check_span(config: Config, measured: pd.DataFrame, output: str, source: Path
 
 def check_varies(config: Config, measured: pd.DataFrame, output: str, source: Path) -> None:
     """Refuse a measured output that never changes where evaluated: its residual holds no evidence."""
-    from bpsflow.alignment import evaluation_hours
+    from bpsflow.alignment import output_evaluation_hours
 
-    hours = [evaluation_hours(test, config.model.year) for test in config.model.tests
-             if output in test.outputs]
-    values = measured[output].reindex(hours[0].append(hours[1:]).unique()).to_numpy(dtype=float)
+    values = measured[output].reindex(output_evaluation_hours(config, output)).to_numpy(
+        dtype=float)
     values = values[np.isfinite(values)]
     if values.size and np.ptp(values) == 0:
         raise BpsflowError(f"column '{output}': every value of the evaluated hours is {values[0]:g}; expected a "

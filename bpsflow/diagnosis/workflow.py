@@ -343,14 +343,10 @@ def prepare(config: Config, measured: pd.DataFrame, settings: DiagnosisSettings)
 
 def _unmeasured_hours(config: Config, measured: pd.DataFrame, output: str) -> int:
     """Evaluated hours of the tests reporting ``output`` that have no measured value."""
-    from bpsflow.alignment import evaluation_hours
+    from bpsflow.alignment import output_evaluation_hours
 
-    hours = [evaluation_hours(t, config.model.year) for t in config.model.tests
-             if output in t.outputs]
-    if not hours:
-        return 0
-    wanted = hours[0].append(hours[1:]).unique()
-    return int(measured[output].reindex(wanted).isna().sum())
+    hours = output_evaluation_hours(config, output)
+    return int(measured[output].reindex(hours).isna().sum())
 
 
 def diagnose(config: Config, measured: pd.DataFrame, out_dir: Path, *,

@@ -40,6 +40,7 @@ from bpsflow.simulation.target_bounds import check_sample_values
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
+    from bpsflow.config import Model as ModelSection
 
 
 def reported_names(directory: Path) -> tuple[list[str], list[str]]:
@@ -197,29 +198,30 @@ def run_instance(config: Config, instance: int | str, sample: dict[str, float], 
 ENERGYPLUS_VERSION = "25.2"
 
 
-def version_mismatch(idf: Path) -> str | None:
+def _first_field(model: ModelSection, object_type: str) -> str | None:
+    """The first field of the model's (single) ``object_type`` object, from the parsed model."""
+    from bpsflow.simulation.idf import model_objects
+
+    found = model_objects(model).of_type(object_type)
+    return found[0].fields[0].strip() if found and found[0].fields else None
+
+
+def version_mismatch(model: ModelSection) -> str | None:
     """A note when the IDF's ``Version`` object names another EnergyPlus release, else None.
 
     EnergyPlus reads an older file's fields in its own release's order, so a
     field added or moved since fails (or worse, shifts) with a message that
     never names the version; the note says what to do instead.
     """
-    import re
-
-    try:
-        text = Path(idf).read_text(encoding="utf-8", errors="replace")
-    except OSError:
+    declared = _first_field(model, "VERSION")
+    version = ".".join((declared or "").split(".")[:2])
+    if not declared or version == ENERGYPLUS_VERSION:
         return None
-    found = re.search(r"(?im)^\s*version\s*,\s*(\d+)\.(\d+)", text)
-    if found is None:
-        return None
-    version = f"{found.group(1)}.{found.group(2)}"
-    if version == ENERGYPLUS_VERSION:
-        return None
-    return (f"model.idf: {Path(idf).name} is written for EnergyPlus {version} (its Version "
+    return (f"model.idf: {Path(model.idf).name} is written for EnergyPlus {version} (its Version "
             f"object); bpsflow runs EnergyPlus {ENERGYPLUS_VERSION}, which reads the fields of "
             f"objects changed since then in its own order: transition the file to "
             f"{ENERGYPLUS_VERSION} first (EnergyPlus's IDFVersionUpdater / transition programs)")
+
 
 def timestep_note(config: Config) -> str | None:
     """A note when ``model.timesteps_per_hour`` replaces another ``Timestep`` of the model.
@@ -228,19 +230,13 @@ def timestep_note(config: Config) -> str | None:
     measured data's time step read it too), so a model's own time step is not
     what runs; said rather than done silently.
     """
-    import re
-
-    try:
-        text = Path(config.model.idf).read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return None
-    found = re.search(r"(?im)^\s*timestep\s*,\s*(\d+)\s*;", text)
-    if found is None or int(found.group(1)) == config.model.timesteps_per_hour:
+    own = _first_field(config.model, "TIMESTEP")
+    if own is None or not own.isdigit() or int(own) == config.model.timesteps_per_hour:
         return None
     return (f"model.timesteps_per_hour: {config.model.timesteps_per_hour} time steps per hour "
             f"(the config's{'' if 'timesteps_per_hour' in config.model.model_fields_set else ' default'}) "
-            f"replace the model's own Timestep of {found.group(1)}; set "
-            f"model.timesteps_per_hour: {found.group(1)} to keep it")
+            f"replace the model's own Timestep of {own}; set "
+            f"model.timesteps_per_hour: {own} to keep it")
 
 
 class EnergyPlusBackend:
@@ -266,7 +262,7 @@ class EnergyPlusBackend:
         check_model_inputs(config)
         template = check_model(config, idd_path(self.binary(config)))
         targets = template.targets
-        notes = [n for n in (version_mismatch(config.model.idf), timestep_note(config)) if n]
+        notes = [n for n in (version_mismatch(config.model), timestep_note(config)) if n]
         return CheckReport(
             backend=self.name, idf_fields=sum(len(v) for v in targets.idf_fields.values()),
             weather_targets=len(targets.weather), boundary_targets=len(targets.boundary),
@@ -310,7 +306,7 @@ class EnergyPlusBackend:
             record, _ = run_instance(trial, 0, nominal_sample(trial), Path(workdir), binary,
                                      idd_path(binary))
         if record.status != "ok":
-            mismatch = version_mismatch(config.model.idf)
+            mismatch = version_mismatch(config.model)
             raise BpsflowError(
                 f"the model does not run in EnergyPlus at its nominal values (test "
                 f"{test.name}, {first:%m-%d}, {days} day(s)): {record.error}"
