@@ -61,6 +61,47 @@ def test_bic_weight_closed_form():
     assert crossval.evidence_words(12.0) == "very strong"
 
 
+def test_effective_fraction_is_the_variance_of_the_mean_of_ar1_noise():
+    """(1 − φ)/(1 + φ): the share of independent hours, checked on the variance of the mean."""
+    rng = np.random.default_rng(4)
+    phi, n = 0.6, 2000
+    assert comparison.effective_fraction(_ar1(rng, 50_000, phi, 1.0)) == pytest.approx(
+        (1 - phi) / (1 + phi), abs=0.01)
+    assert comparison.effective_fraction(rng.normal(size=50_000)) == pytest.approx(1.0, abs=0.02)
+    # the definition itself: n·fraction independent hours give the mean's variance
+    means = [np.mean(_ar1(rng, n, phi, 1.0)) for _ in range(600)]
+    assert np.var(means) * n * (1 - phi) / (1 + phi) == pytest.approx(1.0, rel=0.15)
+
+
+def _passed(cause: str, bic: float, cvrmse_after: float, fraction: float) -> tuple:
+    entry = {"cause": cause, "bic": {"before": 2441.4, "after": bic,
+                                     "effective_fraction": fraction},
+             "cross_validation": {"cvrmse_before": 0.128, "cvrmse_after": cvrmse_after}}
+    return entry, cause
+
+
+def test_a_near_tie_in_bic_is_decided_by_out_of_fold_error():
+    from bpsflow.diagnosis.workflow import choose_cause
+
+    # ΔBIC 7.9 on residuals with φ = 0.5 is 2.6 on independent hours: not strong evidence
+    roof = _passed("solar_aperture (roof)", 1683.1, 0.0571, 1 / 3)
+    south = _passed("solar_aperture (south)", 1691.0, 0.0478, 1 / 3)
+    entry, model = choose_cause([roof, south])
+    assert model == "solar_aperture (south)"
+    assert entry["runner_up"]["cause"] == "solar_aperture (roof)"
+    assert entry["runner_up"]["delta_bic"] == pytest.approx(-7.9)
+    assert entry["runner_up"]["delta_bic_effective"] == pytest.approx(-7.9 / 3)
+    assert "out-of-fold" in entry["chosen_by"]
+    # the same difference on independent hours is strong evidence: BIC decides
+    roof = _passed("solar_aperture (roof)", 1683.1, 0.0571, 1.0)
+    south = _passed("solar_aperture (south)", 1691.0, 0.0478, 1.0)
+    assert choose_cause([roof, south])[1] == "solar_aperture (roof)"
+    assert "chosen_by" not in south[0]
+    # a rival far behind is never chosen, however its folds went
+    gain = _passed("internal_gain_schedule", 1831.3, 0.0100, 1 / 3)
+    assert choose_cause([roof, gain])[1] == "solar_aperture (roof)"
+
+
 def _ar1(rng, n: int, phi: float, scale: float) -> np.ndarray:
     noise = rng.normal(0, scale * np.sqrt(1 - phi ** 2), n)
     out = np.empty(n)

@@ -214,6 +214,32 @@ def encompassing_test(errors_before: np.ndarray, errors_after: np.ndarray, *,
             "lags": int(lags), "n": int(n), "reference": reference}
 
 
+def effective_fraction(residuals: np.ndarray) -> float:
+    """Share of independent observations in autocorrelated residuals, n_eff / n (-).
+
+    For an AR(1) series with lag-1 autocorrelation φ ≥ 0 the variance of a
+    sum is that of ``n (1 + φ)/(1 − φ)`` independent terms, so the series
+    carries ``(1 − φ)/(1 + φ)`` of its nominal information (Bayley &
+    Hammersley, 1946, J. R. Stat. Soc. Suppl. 8: 184–197). A log-likelihood
+    (and so a BIC) difference computed as if the hours were independent
+    overstates the evidence by about the inverse of this share. A negative
+    φ counts as 0 (no gain is claimed from it); φ is capped at 0.99.
+
+    Parameters
+    ----------
+    residuals : ndarray
+        Residuals in time order (output units); missing values are dropped.
+    """
+    values = np.asarray(residuals, dtype=float).ravel()
+    values = values[np.isfinite(values)]
+    if values.size < 3 or float(np.std(values)) == 0.0:
+        return 1.0
+    centred = values - values.mean()
+    phi = float(centred[1:] @ centred[:-1] / (centred @ centred))
+    phi = min(max(phi, 0.0), 0.99)
+    return (1.0 - phi) / (1.0 + phi)
+
+
 def bic(residuals: np.ndarray, n_parameters: int) -> float:
     """Bayesian information criterion of a fit with Gaussian errors (Schwarz, 1978).
 

@@ -335,9 +335,13 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
         for e in d.extensions:
             if e.get("accepted") and e.get("runner_up"):
                 r = e["runner_up"]
+                effective = r.get("delta_bic_effective", r["delta_bic"])
                 lines += ["", f"Round {e['round']}: {e.get('cause', e['name'])} over the "
-                              f"runner-up {r['cause']} by ΔBIC = {r['delta_bic']:.1f} "
-                              f"({r['evidence']}; BIC weight {e['confidence']:.2f})."]
+                              f"runner-up {r['cause']}: "
+                              + (f"chosen by {e['chosen_by']}" if e.get("chosen_by") else
+                                 f"ΔBIC = {r['delta_bic']:.1f}, {effective:.1f} counting the "
+                                 f"residuals' independent hours")
+                              + f" ({r['evidence']}; BIC weight {e['confidence']:.2f})."]
             if e.get("accepted") and e.get("term_selection"):
                 terms = "; ".join(f"{' + '.join(t['terms'])}: {t['bic']:.0f}"
                                   for t in e["term_selection"][:4])

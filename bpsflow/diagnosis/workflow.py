@@ -101,6 +101,10 @@ HELDOUT_LAGS = 24
 #: this (Kass & Raftery 1995: 2 is where evidence starts to count).
 SCREEN_START_MARGIN = 2.0
 
+#: Kass & Raftery's (1995) "strong evidence" between two causes' BIC: a smaller
+#: difference (counted on independent hours) leaves the choice to out-of-fold error.
+STRONG_EVIDENCE_BIC = 6.0
+
 #: The model holding every candidate at zero is noted as not reproducing the current fit
 #: when its BIC is worse by more than this (Kass & Raftery 1995: "very strong").
 NESTING_MARGIN_BIC = 10.0
@@ -696,7 +700,7 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
                      "significantly")
             result.unexplained = [t.name for t in significant]
             break
-        best, model = min(passed, key=lambda pair: pair[0]["bic"]["after"])
+        best, model = choose_cause(passed)
         best["accepted"] = True
         result.verdict = "model_form"
         accepted_causes.add(best["cause"])
@@ -707,8 +711,10 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
                  f"CV(RMSE) {best['cross_validation']['cvrmse_before']:.3%} -> "
                  f"{best['cross_validation']['cvrmse_after']:.3%}"
                  + (f"; runner-up {best['runner_up']['cause']} (ΔBIC "
-                    f"{best['runner_up']['delta_bic']:.1f}, {best['runner_up']['evidence']})"
-                    if best.get("runner_up") else ""))
+                    f"{best['runner_up']['delta_bic']:.1f}, "
+                    f"{best['runner_up']['delta_bic_effective']:.1f} on independent hours, "
+                    f"{best['runner_up']['evidence']})" if best.get("runner_up") else "")
+                 + (f"; chosen by {best['chosen_by']}" if best.get("chosen_by") else ""))
     else:
         residual = d.y - current.fit.prediction
         left = [t.name for t in context.test(residual[d.calibration]) if t.significant]
@@ -1541,13 +1547,14 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
         # the runner-up: the next cause fitted, or a screened-out one if its screen is lower
         others = [(float(bics[j]), chosen[j][0].cause, "fitted") for j in order if j != index]
         others += [(value, cause, "screened") for value, cause in screened_out]
+        # hourly residuals are autocorrelated: a BIC difference counted as if every hour
+        # were independent overstates the evidence between two causes
+        fraction = comparison.effective_fraction(d.y[cal] - fit.prediction[cal])
+        entry["bic"]["effective_fraction"] = fraction
         if others:
             runner_bic, runner_cause, how = min(others)
-            delta = float(runner_bic - bics[index])
-            entry["runner_up"] = {"cause": runner_cause, "bic": runner_bic, "bic_from": how,
-                                  "delta_bic": delta,
-                                  "evidence": crossval.evidence_words(abs(delta))}
-            entry["confidence"] = crossval.bic_weight(bics[index], runner_bic)
+            entry.update(_runner_up(runner_cause, runner_bic, how, float(bics[index]),
+                                    fraction))
         announce(f"  {candidate.cause}: {_fitted_text(entry['fitted'])}; BIC {bic_before:.1f} "
                  f"-> {bics[index]:.1f}" + (
                      f"; out-of-fold CV(RMSE) {cv['cvrmse_before']:.3%} -> "
@@ -1572,6 +1579,63 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                          "bic": {"before": bic_before, "after": None},
                          "passed": False, "screened_out": True, **variant[2]}, None))
     return out
+
+
+def _runner_up(cause: str, runner_bic: float, how: str, bic: float,
+               fraction: float) -> dict:
+    """The ``runner_up`` record of a cause and its ``confidence`` (BIC weight).
+
+    The evidence words and the weight read the BIC difference scaled by the
+    residuals' effective share of independent hours
+    (:func:`comparison.effective_fraction`); ``delta_bic`` stays as computed.
+    """
+    delta = float(runner_bic - bic)
+    effective = delta * fraction
+    return {"runner_up": {"cause": cause, "bic": runner_bic, "bic_from": how,
+                          "delta_bic": delta, "delta_bic_effective": effective,
+                          "evidence": crossval.evidence_words(abs(effective))},
+            "confidence": crossval.bic_weight(0.0, effective)}
+
+
+def choose_cause(passed: list[tuple[dict, Model]]) -> tuple[dict, Model]:
+    """The cause a round accepts among those that passed its gates.
+
+    The lowest BIC wins, unless a rival is behind it by less than strong
+    evidence (Kass & Raftery 1995: ΔBIC < :data:`STRONG_EVIDENCE_BIC`) once
+    the difference is scaled to the residuals' independent hours
+    (:func:`comparison.effective_fraction`): among such near-ties the lower
+    out-of-fold CV(RMSE) wins, the direct measure of prediction on data
+    the fit did not see (two faces of a building whose irradiance differs
+    by an hour's shift in its daily peak can be that close). The chosen
+    entry then records ``chosen_by`` and its runner-up is the BIC-best rival.
+
+    Parameters
+    ----------
+    passed : list of (entry, Model)
+        :func:`_try_extensions`' entries that passed, each with
+        ``bic.after``, ``bic.effective_fraction`` and ``cross_validation``.
+    """
+    by_bic = min(passed, key=lambda pair: pair[0]["bic"]["after"])
+    best_bic = by_bic[0]["bic"]["after"]
+    fraction = by_bic[0]["bic"].get("effective_fraction", 1.0)
+    close = [pair for pair in passed
+             if (pair[0]["bic"]["after"] - best_bic) * fraction < STRONG_EVIDENCE_BIC
+             and pair[0].get("cross_validation")]
+    if len(close) < 2:
+        return by_bic
+    chosen = min(close, key=lambda pair: pair[0]["cross_validation"]["cvrmse_after"])
+    if chosen is by_bic:
+        return by_bic
+    entry, rival = chosen[0], by_bic[0]
+    entry.update(_runner_up(rival["cause"], best_bic, "fitted", entry["bic"]["after"],
+                            fraction))
+    entry["chosen_by"] = (
+        f"out-of-fold CV(RMSE) {entry['cross_validation']['cvrmse_after']:.3%} against "
+        f"{rival['cross_validation']['cvrmse_after']:.3%} for {rival['cause']}, whose BIC is "
+        f"lower by {entry['bic']['after'] - best_bic:.1f} "
+        f"({(entry['bic']['after'] - best_bic) * fraction:.1f} counting the residuals' "
+        f"independent hours): not strong evidence")
+    return chosen
 
 
 def _nominated(ranked: list[int], bics: list[float], families: list[str], count: int,
