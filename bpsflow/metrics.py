@@ -213,6 +213,42 @@ def rmse(observed, predicted, p: int = 1) -> float:
     return float(np.sqrt(np.sum((y - y_hat) ** 2) / _degrees_of_freedom(y.size, p)))
 
 
+def error_concentration(observed, predicted, top_share: float = 0.01) -> tuple[np.ndarray, float]:
+    """The few largest errors and their share of the squared error behind an RMSE.
+
+    An hourly CV(RMSE) can rest on a handful of hours (a reheat peak that a
+    simulation's time step moves by one step); the share says how far the
+    metric describes the whole record.
+
+    Parameters
+    ----------
+    observed, predicted : array_like
+        Observations and point predictions of the same length; pairs with a
+        NaN are left out.
+    top_share : float
+        Share of the (finite) pairs counted as "the few", at least one pair (-).
+
+    Returns
+    -------
+    positions : ndarray of int
+        Positions (in the given arrays) of the largest absolute errors, largest first.
+    share : float
+        Their share of the sum of squared errors (-); 0 when every error is 0.
+    """
+    y = np.asarray(observed, dtype=float).ravel()
+    y_hat = np.asarray(predicted, dtype=float).ravel()
+    if y.shape != y_hat.shape:
+        raise ValueError(f"observed and predicted differ in length ({y.size} and {y_hat.size})")
+    squared = (y - y_hat) ** 2
+    finite = np.flatnonzero(np.isfinite(squared))
+    if finite.size == 0:
+        return np.array([], dtype=int), 0.0
+    count = max(1, int(round(top_share * finite.size)))
+    order = finite[np.argsort(-squared[finite], kind="stable")][:count]
+    total = float(np.sum(squared[finite]))
+    return order, (float(np.sum(squared[order]) / total) if total > 0 else 0.0)
+
+
 def mae(observed, predicted) -> float:
     """Mean absolute error ``Σ|y − ŷ| / n``, in the data's unit (e.g. °C).
 

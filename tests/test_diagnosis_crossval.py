@@ -275,3 +275,21 @@ def test_a_current_model_whose_linearised_folds_blow_up_is_refitted_by_simulatio
     # the honest (exact) out-of-fold error of this well-specified model is its noise
     assert redone["cvrmse_before"] == pytest.approx(sound["cvrmse_before"], rel=0.05)
     assert redone["cvrmse_before"] < 0.05
+
+
+def test_a_heldout_error_resting_on_one_hour_is_noted_with_the_others_cv():
+    from bpsflow.diagnosis.workflow import concentration_note
+    from bpsflow.metrics import error_concentration
+
+    hours = pd.date_range("2025-03-05 01:00", periods=168, freq="h")
+    measured = np.full(168, 100.0)
+    prediction = measured + 1.0
+    prediction[100] = measured[100] + 20.0       # one reheat peak placed a time step later
+    positions, share = error_concentration(measured, prediction)
+    assert len(positions) == 2 and positions[0] == 100      # 1 % of 168 hours, rounded
+    assert share == pytest.approx(401.0 / (400.0 + 167.0))
+    note = concentration_note(measured, prediction, hours, "heating_power_w")
+    assert note is not None and f"{hours[100]:%Y-%m-%d %H:%M}" in note
+    assert "2 of 168 hours" in note and "1.00%" in note      # the other hours: 1 W on 100 W
+    # errors spread over the record: no note
+    assert concentration_note(measured, measured + np.linspace(-2, 2, 168), hours, "x") is None

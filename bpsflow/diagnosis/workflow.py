@@ -83,7 +83,7 @@ from bpsflow.diagnosis.signatures import (
     signatures,
 )
 from bpsflow.errors import BpsflowError
-from bpsflow.metrics import rmse
+from bpsflow.metrics import cv_rmse, error_concentration, rmse
 from bpsflow.simulation.backend import get_backend
 from bpsflow.simulation.ensemble import BatchFailure
 
@@ -104,6 +104,10 @@ SCREEN_START_MARGIN = 2.0
 #: Kass & Raftery's (1995) "strong evidence" between two causes' BIC: a smaller
 #: difference (counted on independent hours) leaves the choice to out-of-fold error.
 STRONG_EVIDENCE_BIC = 6.0
+
+#: A held-out CV(RMSE) is noted as resting on a few hours when its largest 1 % of
+#: hours carry more than this share of its squared error.
+CONCENTRATED_ERROR_SHARE = 0.5
 
 #: The model holding every candidate at zero is noted as not reproducing the current fit
 #: when its BIC is worse by more than this (Kass & Raftery 1995: "very strong").
@@ -2537,6 +2541,28 @@ def _tested_driver(result: Diagnosis, cause: dict, accepted: list[dict]) -> None
         cause["driver"] = found[0]
 
 
+def concentration_note(measured: np.ndarray, prediction: np.ndarray,
+                       timestamps: pd.DatetimeIndex, output: str) -> str | None:
+    """A note when a held-out CV(RMSE) rests on a few hours (:func:`error_concentration`).
+
+    ``None`` unless the largest 1 % of the hours' errors carry more than
+    :data:`CONCENTRATED_ERROR_SHARE` of the squared error; the note names
+    them and gives the CV(RMSE) of the other hours.
+    """
+    positions, share = error_concentration(measured, prediction)
+    if share <= CONCENTRATED_ERROR_SHARE or len(positions) >= len(measured):
+        return None
+    rest = np.ones(len(measured), dtype=bool)
+    rest[positions] = False
+    hours = ", ".join(f"{timestamps[i]:%Y-%m-%d %H:%M}" for i in positions[:3])
+    return (f"the final model's held-out CV(RMSE) of {output} rests on {len(positions)} of "
+            f"{len(measured)} hours ({hours}{', ...' if len(positions) > 3 else ''}), "
+            f"{share:.0%} of its squared error; over the other hours it is "
+            f"{float(cv_rmse(measured[rest], prediction[rest])):.2%}. A peak that the "
+            f"simulation's time step places differently (a reheat after a setback) can "
+            f"outweigh the rest of the record")
+
+
 def _finish(context: _Context, result: Diagnosis) -> None:
     """Verdict summary sentence and the overall held-out gain."""
     before = result.scorecard["heldout"]
@@ -2545,6 +2571,11 @@ def _finish(context: _Context, result: Diagnosis) -> None:
     after = result.final_scores["heldout"]
     result.gain = {"metric": "cvrmse", "before": before["cvrmse"], "after": after["cvrmse"],
                    "nmcrps_before": before["nmcrps"], "nmcrps_after": after["nmcrps"]}
+    held = ~result.calibration
+    note = concentration_note(result.measured[held], result.final.fit.prediction[held],
+                              result.timestamps[held], result.output)
+    if note and note not in result.notes:
+        result.notes.append(note)
     cause = {"driver": None, "parameter": None, "extension": None, **(result.cause or {})}
     result.cause = cause
     if result.verdict == "none":
