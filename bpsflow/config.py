@@ -172,8 +172,9 @@ class Test(_Strict):
     cannot share a config with the other modes, since the tool either rewires
     the thermostats for a whole run or leaves them alone.
     ``setpoint_c`` is the thermostat setpoint in °C; ``setback_c`` (optional)
-    the setpoint between ``setback_start_hour`` and ``setback_end_hour`` (next
-    day). The first ``warmup_days`` are simulated but not evaluated.
+    the setpoint from ``setback_start_hour`` to ``setback_end_hour`` (the next
+    day's when it is the earlier hour: 18 to 8 crosses midnight, 0 to 6 does not).
+    The first ``warmup_days`` are simulated but not evaluated.
     """
 
     name: SafeName
@@ -220,6 +221,14 @@ class Test(_Strict):
                 f"setpoint_c ({self.setpoint_c:g} °C) of a {self.mode} test; expected a setback "
                 f"that {'lowers' if self.mode == 'heating' else 'raises'} the setpoint (setback_c "
                 f"{'<=' if self.mode == 'heating' else '>='} setpoint_c)")
+        if self.setback_c is not None and \
+                self.setback_start_hour % 24 == self.setback_end_hour % 24:
+            raise ValueError(
+                f"setback_start_hour ({self.setback_start_hour}) and setback_end_hour "
+                f"({self.setback_end_hour}) are the same hour of the day, so the setback window "
+                f"is empty; expected the hours the setback starts and ends (e.g. 18 and 8, or "
+                f"0 and 6), or no setback_c")
+        _unique(self.outputs, "outputs")
         if self.warmup_days >= self.days:
             raise ValueError(f"warmup_days ({self.warmup_days}) must be fewer than days ({self.days})")
         return self

@@ -302,7 +302,21 @@ def require_same_simulation(config: Config, run_dir: Path, command: str,
     """
     record = read_simulation_record(run_dir)
     if record is None:
-        return
+        from bpsflow.simulation.rundir import INSTANCE_OUTPUTS
+
+        if not any(path.is_file() for path in
+                   (Path(run_dir) / "instances").glob(f"*/{INSTANCE_OUTPUTS}")):
+            return
+        # finished instances without a record of their model: whether they match the
+        # config cannot be told, and mixing two models' results would go unseen
+        state = "is damaged" if (Path(run_dir) / SIMULATION_FILE).exists() else "is missing"
+        raise BpsflowError(
+            f"{Path(run_dir) / SIMULATION_FILE} {state}: it records the model the finished "
+            f"instances in {run_dir} simulated, so '{command}' cannot tell whether they "
+            f"simulated the config's model. Run them again with 'bpsflow sample CONFIG "
+            f"--force' then 'bpsflow run' (the old results are moved to "
+            f"{Path(run_dir) / 'previous'}/<timestamp>), or use another --run-dir",
+            source=config.source)
     changes = changed_keys(record["inputs"], inputs or simulation_inputs(config))
     if backend is not None and record.get("backend") not in (None, backend):
         changes.insert(0, f"backend: {record['backend']} -> {backend}")

@@ -182,6 +182,23 @@ def test_a_setback_on_the_wrong_side_of_the_setpoint_is_refused(tmp_path, mode, 
                        "model.tests", "setback_c", needle)
 
 
+@pytest.mark.parametrize("start,end", [(8, 8), (24, 0), (0, 24)])
+def test_an_empty_setback_window_is_refused(tmp_path, start, end):
+    raw = _surrogate_raw()
+    raw["model"]["tests"][0].update(mode="heating", setpoint_c=21.0, setback_c=15.0,
+                                    setback_start_hour=start, setback_end_hour=end)
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "model.tests", "setback window is empty")
+
+
+def test_an_output_listed_twice_in_a_test_is_refused(tmp_path):
+    raw = _surrogate_raw()
+    output = raw["model"]["tests"][0]["outputs"][0]
+    raw["model"]["tests"][0]["outputs"] = [output, output]
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "model.tests", "outputs", "appears more than once")
+
+
 def test_an_odd_number_of_morris_levels_is_refused(tmp_path):
     raw = _surrogate_raw()
     raw["design"] = {"method": "morris", "levels": 3, "trajectories": 2}

@@ -298,7 +298,7 @@ def test_mixing_stamps_with_and_without_offset_is_an_error(case):
     _assert_fails_cleanly(case, case.text("\n".join(lines) + "\n"), "line 8", "UTC offset")
 
 
-def test_offset_stamps_without_a_model_time_zone_are_refused(case, tmp_path):
+def test_a_weather_without_time_zone_and_no_model_record_is_refused(case, tmp_path):
     config = load_config(case.config)
     lines = Path(config.model.weather).read_text().splitlines(keepends=True)
     fields = lines[0].rstrip("\r\n").split(",")
@@ -310,15 +310,15 @@ def test_offset_stamps_without_a_model_time_zone_are_refused(case, tmp_path):
     raw["model"]["weather"] = str(epw)
     (tmp_path / "cfg").mkdir()
     other = write_config(tmp_path / "cfg", raw)
-    # no record of the simulated weather (a run directory from before simulation.json): the
-    # run itself refuses such a weather file, and validate must still say why it cannot align
+    # no record of the simulated weather: validate cannot tell which model the results are
+    # of, and says so before it reads the stamps
     (case.run_dir / "simulation.json").unlink()
     utc = case.hourly.copy()
     utc.index = (utc.index + pd.Timedelta(hours=8)).strftime("%Y-%m-%dT%H:%M:%SZ")
     before = snapshot(case.run_dir)
     result = invoke("validate", other, "--measured", case.write(utc, "utc.csv"), "--run-dir",
                     case.run_dir)
-    assert_clean_error(result, "utc.csv", "time zone is not known")
+    assert_clean_error(result, "simulation.json is missing")
     assert_unchanged(before, case.run_dir)
 
 

@@ -669,6 +669,17 @@ def test_finished_instances_of_another_model_are_never_resumed_or_scored(tmp_pat
         assert_clean_error(invoke(*command), "simulated another model", "model.tests",
                            "sample CONFIG --force")
     assert_unchanged(before, run_dir)
+    # without a readable record of the model, finished instances are never mixed with new ones
+    record = run_dir / "simulation.json"
+    saved = record.read_bytes()
+    for state, damage in (("is missing", None), ("is damaged", b"{")):
+        record.unlink(missing_ok=True)
+        if damage is not None:
+            record.write_bytes(damage)
+        assert_clean_error(invoke("run", setpoint, "--run-dir", run_dir, "--no-progress"),
+                           f"simulation.json {state}", "sample CONFIG --force")
+    record.write_bytes(saved)
+    assert_unchanged(before, run_dir)
 
     idf.write_text(idf.read_text() + "\n! edited after the run\n")
     assert_clean_error(invoke("run", config, "--no-progress"), "model.idf (sha256)")

@@ -133,6 +133,10 @@ def test_overlay_with_unknown_config_key(tmp_path, hydronic):
     message = _bad(tmp_path, lambda t: t.replace("change:\n", "change:\n  overlay: {model: {idff: x.idf}}\n"),
                    hydronic)
     assert "change.overlay" in message and "idff" in message and "unknown key" in message
+    # a misspelt top-level key too (it was a KeyError)
+    message = _bad(tmp_path, lambda t: t.replace("change:\n", "change:\n  overlay: {modle: {idf: x.idf}}\n"),
+                   hydronic)
+    assert "change.overlay.modle: unknown key" in message and "model" in message
 
 
 @pytest.mark.parametrize("overlay, key", [("{model: {timesteps_per_hour: 4}}",

@@ -199,6 +199,20 @@ def test_one_driver_matches_statsmodels():
             assert fixed.direction == 1 and fixed.coefficients["incident_solar_west"] > 0
 
 
+def test_a_driver_in_huge_units_gives_the_same_test():
+    """A sensor logged in odd units (×1e298) is the same driver: no overflow, same p and share."""
+    drivers = window_drivers()
+    residual = pd.Series(0.004 * drivers["incident_solar_west"] + ar1_noise(3), index=drivers.index)
+    huge = drivers[["incident_solar_west"]] * 1e298
+    [plain] = structure.test_drivers(residual, drivers[["incident_solar_west"]], hac_lags=30)
+    [scaled] = structure.test_drivers(residual, huge, hac_lags=30)
+    assert scaled.p_value == pytest.approx(plain.p_value, rel=1e-6)
+    assert scaled.share == pytest.approx(plain.share, rel=1e-9)
+    assert scaled.direction == plain.direction == 1
+    assert scaled.coefficients["incident_solar_west"] == pytest.approx(
+        plain.coefficients["incident_solar_west"] * 1e-298, rel=1e-9)
+
+
 def test_fixed_b_reference_tends_to_chi2():
     # b → 0: the fixed-b F approximation is the χ²(q) test
     assert structure.fixed_b_pvalue(12.6, 6, 0, 10 ** 7) == pytest.approx(

@@ -63,6 +63,13 @@ def test_setpoint_profiles_follow_the_test_mode(config):
     assert heat == [(8, 20.0), (18, 30.0), (24, 20.0)]
     assert cool == [(24, COOLING_OFF_C)]
     assert day_setpoints(free) == ([(24, HEATING_OFF_C)], [(24, COOLING_OFF_C)])
+    # a window within the day, and one that starts at midnight, are kept as written
+    for start, end, expected in ((12, 14, [(12, 30.0), (14, 20.0), (24, 30.0)]),
+                                 (0, 6, [(6, 20.0), (24, 30.0)]),
+                                 (22, 24, [(22, 30.0), (24, 20.0)])):
+        moved = heating_st.model_copy(update={"setback_start_hour": start,
+                                              "setback_end_hour": end})
+        assert day_setpoints(moved)[0] == expected
     heating_text, cooling_text = setpoint_schedules(config, config.model.periods[0])
     assert "Through: 12/06" in heating_text and "Until: 18:00,\n  30" in heating_text
     assert heating_text.rstrip().endswith(";") and "Through: 12/31" in heating_text

@@ -220,7 +220,6 @@ def _check_overlay_keys(overlay: dict, source: Path) -> None:
     """
     from bpsflow.config import Model
 
-    # an unknown key is the config schema's to name (with_overlay): only known settings here
     for key, value in overlay.items():
         if key not in OVERLAY_KEYS and key in Config.model_fields:
             raise BpsflowError(
@@ -228,6 +227,11 @@ def _check_overlay_keys(overlay: dict, source: Path) -> None:
                 f"model.idf, model.idf_objects); '{key}' is how the model is simulated or "
                 "judged, and its change would be read as the intervention's effect",
                 source=source)
+        if key not in OVERLAY_KEYS:
+            raise BpsflowError(
+                f"change.overlay.{key}: unknown key; expected "
+                + " or ".join(sorted(OVERLAY_KEYS)) + " (parameters, model.idf, "
+                "model.idf_objects)", source=source)
         allowed = OVERLAY_KEYS[key]
         if allowed is not None and isinstance(value, dict):
             for inner in value:

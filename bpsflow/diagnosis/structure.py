@@ -295,8 +295,15 @@ def _test_one(name: str, y: np.ndarray, regressors: pd.DataFrame, driver: np.nda
 
     group = driver_group(name)
     values = regressors.to_numpy(dtype=float)
+    # each column over its largest magnitude: the tests are invariant to a column's scale,
+    # and a sensor logged in odd units (1e300) would overflow the squares otherwise
+    scale = np.abs(values).max(axis=0, initial=0.0)
+    scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+    values = values / scale
     varies = values.std(axis=0) > 1e-12 * (1.0 + np.abs(values).max(axis=0, initial=0.0))
-    values, columns = values[:, varies], regressors.columns[varies]
+    values, columns, scale = values[:, varies], regressors.columns[varies], scale[varies]
+    driver_peak = float(np.max(np.abs(driver), initial=0.0))
+    driver = driver / driver_peak if np.isfinite(driver_peak) and driver_peak > 0 else driver
     q = values.shape[1]
     if q == 0 or len(y) <= 2 * (q + 1):
         return None
@@ -324,7 +331,7 @@ def _test_one(name: str, y: np.ndarray, regressors: pd.DataFrame, driver: np.nda
     return DriverTest(name=name, group=group, p_value=p_value, p_adjusted=p_value, share=share,
                       amplitude=amplitude, direction=direction, sign_consistent=consistent,
                       significant=False,
-                      coefficients=dict(zip(columns, map(float, ols.params[1:]))),
+                      coefficients=dict(zip(columns, map(float, ols.params[1:] / scale))),
                       lags=lags)
 
 

@@ -440,6 +440,9 @@ def diagnose_many(config: Config, measured: list[pd.DataFrame], out_dirs: list[P
         context.data, context.out_dir = d, Path(out_dir)
         context.notes = list(shared_notes)
         Path(out_dir).mkdir(parents=True, exist_ok=True)
+        # an input far from its nominal value may stand in for physics the model lacks (a
+        # leak that follows ΔT fits as a conductance): the user sees where the fit went
+        announce(f"  fitted: {_fitted_text(fit.named)}")
         results.append(_diagnose_one(context, Model(config, fitted, fit, "base"), announce))
         results[-1].seconds = time.perf_counter() - started + shared
         results[-1].timings = {k: round(v, 2) for k, v in context.timings.items()}

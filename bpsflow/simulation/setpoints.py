@@ -60,7 +60,11 @@ def day_setpoints(test: Test | None) -> tuple[list[tuple[int, float]], list[tupl
         active = [(24, setpoint)]
     else:
         back, start, end = float(test.setback_c), test.setback_start_hour, test.setback_end_hour
-        active = [(end, back), (start, setpoint), (24, back)] if end < start else [(24, setpoint)]
+        # a window that crosses midnight (18 -> 8) or lies within the day (0 -> 6, 12 -> 14)
+        steps = [(end, back), (start, setpoint), (24, back)] if end < start else \
+            [(start, setpoint), (end, back), (24, setpoint)]
+        active = [(hour, value) for number, (hour, value) in enumerate(steps)
+                  if hour > (steps[number - 1][0] if number else 0)]
     if test.mode == "heating":
         return active, [(24, COOLING_OFF_C)]
     return [(24, HEATING_OFF_C)], active
