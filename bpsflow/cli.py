@@ -320,6 +320,19 @@ def check(config: Path = ConfigArg,
         from bpsflow.diagnosis.workflow import check_settings as check_diagnosis_settings
 
         check_diagnosis_settings(cfg, cfg.diagnosis)
+    if cfg.calibration is not None:
+        # what calibrate would refuse before its design runs: outputs, parameters, hold-out
+        from bpsflow.calibration import workflow as calibration_workflow
+        from bpsflow.calibration.design import calibration_parameters
+
+        settings = cfg.calibration
+        calibration_parameters(cfg, settings)
+        scenarios = [(settings.scenario(calibration_workflow.default_outputs(cfg)),
+                      "calibration")]
+        scenarios += [(s, f"calibration.scenarios ({s.name})") for s in settings.scenarios]
+        for scenario, where in scenarios:
+            calibration_workflow.check_scenario(cfg, scenario, where)
+            calibration_workflow.check_holdout(cfg, settings, scenario)
     report.notes.extend(inert_targets(cfg))
     report.notes.extend(truncation_notes(cfg.parameters))
     if report.controlled_zones:

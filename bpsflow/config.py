@@ -853,7 +853,29 @@ def _read_raw(path: Path, seen: tuple[Path, ...]) -> dict:
     if not parent_path.is_file():
         raise BpsflowError(f"extends: base config not found: {parent_path}", source=path)
     base = _absolute_paths(_read_raw(parent_path, seen + (path.resolve(),)), parent_path.parent)
+    unchanged = _empty_merges(base, raw)
+    if unchanged:
+        raise BpsflowError(
+            f"{unchanged[0]}: an empty {'list' if unchanged[0].endswith('idf_objects') else 'mapping'}"
+            f" in a config that extends another changes nothing (it merges into the base's "
+            f"entries, which stay); give the entries to change with their new values, or "
+            f"write the config without extends", source=path)
     return _merge(base, raw)
+
+
+def _empty_merges(base: dict, child: dict, where: str = "") -> list[str]:
+    """Key paths where ``child`` gives an empty mapping (or ``idf_objects`` list) that
+    :func:`_merge` would merge into a non-empty one of ``base``: a silent no-op."""
+    found = []
+    for key, value in child.items():
+        earlier = base.get(key)
+        path = f"{where}{key}"
+        if isinstance(value, dict) and isinstance(earlier, dict):
+            found += [path] if not value and earlier else _empty_merges(earlier, value,
+                                                                         path + ".")
+        elif key == "idf_objects" and value == [] and earlier:
+            found.append(path)
+    return found
 
 
 def config_chain(path: str | Path) -> list[Path]:

@@ -133,6 +133,9 @@ def test_february_29_is_a_day_of_a_leap_model_year(tmp_path):
     ({"extends": ["base.yaml"]}, "expected the path of one base config"),
     ({"extends": "."}, "is a folder"),
     ({"extends": "base.yaml", "parameters": []}, "removes nothing"),
+    ({"extends": "base.yaml", "outputs": {}}, "outputs: an empty mapping"),
+    ({"extends": "base.yaml", "model": {"boundary": {"surfaces": {}}}},
+     "model.boundary.surfaces: an empty mapping"),
 ])
 def test_extends_mistakes_are_named(tmp_path, child, needle):
     write_config(tmp_path, _surrogate_raw(), name="base.yaml")
@@ -339,3 +342,35 @@ def test_check_refuses_what_diagnose_would_refuse(tmp_path, section, expected):
     raw = _surrogate_raw()
     raw["diagnosis"] = section
     assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), expected)
+
+
+def test_an_empty_snippet_list_over_a_base_with_snippets_is_named():
+    from bpsflow.config import _empty_merges
+
+    base = {"model": {"idf_objects": ["/a/leak.idf"], "idf": "/a/m.idf"}, "outputs": {"x": {}}}
+    assert _empty_merges(base, {"model": {"idf_objects": []}}) == ["model.idf_objects"]
+    # a list that replaces (diagnosis.parameters) and an empty mapping over an empty one change
+    # what they say, or nothing the base had: not named
+    assert _empty_merges({"diagnosis": {"parameters": ["a"]}, "outputs": {}},
+                         {"diagnosis": {"parameters": []}, "outputs": {}}) == []
+
+
+@pytest.mark.parametrize("calibration, needle", [
+    ({"outputs": ["foo"]}, "calibration.outputs[0]: unknown output 'foo'"),
+    ({"parameters": ["foo"]}, "'foo' is not a parameter"),
+    ({"holdout_days": 40}, "calibration.holdout_days"),
+    ({"scenarios": [{"name": "A", "outputs": ["foo"], "resolution": "daily"}]},
+     "calibration.scenarios (A).outputs[0]"),
+])
+def test_check_refuses_what_calibrate_would(tmp_path, calibration, needle):
+    raw = _surrogate_raw()
+    fitted = next(p["name"] for p in raw["parameters"]
+                  if p["distribution"]["type"] in ("uniform", "normal", "beta", "triangular"))
+    raw["model"]["tests"][0]["warmup_days"] = 0     # two evaluated days: one held out
+    fine = {"parameters": [fitted], "holdout_days": 1, "resolution": "hourly",
+            "outputs": ["heating_power_w"]}
+    raw["calibration"] = {**fine, **calibration}
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"), needle)
+    raw["calibration"] = fine
+    (tmp_path / "fine").mkdir()
+    assert invoke("check", write_config(tmp_path / "fine", raw), "--no-run").exit_code == 0
