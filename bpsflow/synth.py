@@ -27,7 +27,8 @@ from bpsflow.config import Config, _format_location, parse_yaml
 from bpsflow.errors import BpsflowError
 from bpsflow.files import read_user_text, write_csv, write_json
 from bpsflow.schema import StrictModel
-from bpsflow.simulation.target_bounds import check_sample_values
+from bpsflow.simulation.target_bounds import check_sample_values, check_weather_support
+from bpsflow.weather import read_epw
 
 MEASURED_FILE = "measured.csv"
 TRUTH_FILE = "truth.json"
@@ -77,8 +78,6 @@ def default_noise(unit: str) -> Noise:
 def load_truth(path: Path, config: Config) -> Truth:
     """Read and check a truth file against the config's parameters and outputs."""
     path = Path(path)
-    if not path.is_file():
-        raise BpsflowError(f"truth file not found: {path}")
     try:
         raw = parse_yaml(read_user_text(path, "a YAML truth file")) or {}
         truth = Truth.model_validate(raw)
@@ -267,6 +266,8 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     # A true value outside what EnergyPlus accepts (a reflectance of 5) is refused, as for
     # any drawn sample, rather than simulated silently.
     check_sample_values(full, frame, "the truth values")
+    # a weather perturbation is bounded by the EPW's valid ranges, as for a design
+    check_weather_support(full, read_epw(full.model.weather).columns, sample)
     try:
         # The truth draws from the run directory's boundary sequences, like its ensemble.
         outputs = simulate_samples(full, frame, out_dir / "simulation", simulator,

@@ -106,6 +106,19 @@ def test_a_weather_error_beyond_the_epw_range_is_refused_by_check(tmp_path):
                        f"parameters ({entry['name']})", "dry_bulb_temperature", "-70..70 °C")
 
 
+def test_a_truth_weather_error_beyond_the_epw_range_is_refused_by_synth(tmp_path):
+    """A true dry-bulb error of 1000 °C made a 100 °C zone; the design's own check refuses it."""
+    raw = _surrogate_raw()
+    entry = next(p for p in raw["parameters"]
+                 if any(t.get("weather") == "dry_bulb_temperature" for t in p["targets"]))
+    config = write_config(tmp_path, raw)
+    truth = tmp_path / "truth.yaml"
+    truth.write_text(f"values:\n  {entry['name']}: 1000\n")
+    assert_clean_error(invoke("synth", config, "--truth", truth, "--out", tmp_path / "out"),
+                       f"parameters ({entry['name']})", "the truth values", "-70..70 °C")
+    assert not (tmp_path / "out" / "measured.csv").exists()
+
+
 def test_a_free_floating_test_with_a_setpoint_is_refused(tmp_path):
     raw = _surrogate_raw()
     raw["model"]["tests"][1]["setpoint_c"] = 21.0
@@ -374,3 +387,12 @@ def test_check_refuses_what_calibrate_would(tmp_path, calibration, needle):
     raw["calibration"] = fine
     (tmp_path / "fine").mkdir()
     assert invoke("check", write_config(tmp_path / "fine", raw), "--no-run").exit_code == 0
+
+
+def test_a_truth_that_is_a_folder_is_named_as_such(tmp_path):
+    config = write_config(tmp_path, _surrogate_raw())
+    (tmp_path / "truths").mkdir()
+    assert_clean_error(invoke("synth", config, "--truth", tmp_path / "truths"),
+                       "is not a file; expected a YAML truth file")
+    assert_clean_error(invoke("synth", config, "--truth", tmp_path / "none.yaml"),
+                       "file not found; expected a YAML truth file")

@@ -216,8 +216,6 @@ def load_intervention(path: Path, config: Config) -> Intervention:
     from bpsflow.files import read_user_text
 
     path = Path(path)
-    if not path.is_file():
-        raise BpsflowError(f"intervention file not found: {path}")
     try:
         raw = parse_yaml(read_user_text(path, "an intervention file (YAML)"))
     except yaml.YAMLError as exc:

@@ -222,10 +222,13 @@ def check_distribution_support(config: Config) -> None:
 SOLAR_CONSTANT_W_M2 = 1361.0
 
 
-def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> None:
+def check_weather_support(config: Config, columns: dict[str, np.ndarray],
+                          instance: dict[str, float] | None = None) -> None:
     """Refuse weather perturbations that take a quantity outside the EPW's valid range.
 
     ``columns`` are the weather file's own values (:attr:`bpsflow.weather.EpwFile.columns`).
+    ``instance`` (parameter name -> value), when given, are one instance's values (a truth)
+    checked instead of each distribution's reach.
     The same ranges refuse a weather file with such values (:data:`bpsflow.weather.EPW_RANGES`):
     a dry-bulb bias of +80 °C is a unit or typing mistake, and EnergyPlus only warns and
     runs on. Irradiance and wind are clipped at zero where a perturbation takes them below
@@ -247,6 +250,7 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
             if isinstance(target, WeatherTarget) and parameter not in on_field.get(
                     target.weather, []):
                 on_field.setdefault(target.weather, []).append(parameter)
+    what = "the truth values" if instance is not None else "the design"
     clipped_at_zero = {"wind_speed", "wind_direction", "global_horizontal_radiation",
                        "diffuse_horizontal_radiation", "direct_normal_radiation"}
     for quantity, parameters in on_field.items():
@@ -264,7 +268,8 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
         middle = float(np.median(values[values > 0])) if (values > 0).any() else 0.0
         middle_low = middle_high = middle
         for parameter in parameters:
-            a, b = _reach(parameter)
+            a, b = (instance[parameter.name],) * 2 if instance and parameter.name in instance \
+                else _reach(parameter)
             low, high = _combine(parameter.mode, low, high, a, b)
             middle_low, middle_high = _combine(parameter.mode, middle_low, middle_high, a, b)
         if quantity in clipped_at_zero and quantity != "wind_direction" and middle > 0 \
@@ -273,7 +278,7 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
             # the typical hour to zero at every draw has removed the quantity, not perturbed it
             names = ", ".join(p.name for p in parameters)
             raise BpsflowError(
-                f"parameters ({names}): even the largest value of the design takes the "
+                f"parameters ({names}): even the largest value of {what} takes the "
                 f"weather's typical {quantity} ({middle:.6g} {unit}, the median of its non-zero "
                 f"hours) to {middle_high:.6g} {unit}, which is clipped to 0: the perturbation "
                 f"removes the quantity. Check the distribution's sign, unit and bounds (an "
@@ -286,7 +291,7 @@ def check_weather_support(config: Config, columns: dict[str, np.ndarray]) -> Non
             how = " then ".join(f"{p.name} ({p.mode}, {p.distribution.type})"
                                 for p in parameters)
             raise BpsflowError(
-                f"parameters ({names}): the design can take the weather's {quantity} to "
+                f"parameters ({names}): {what} can take the weather's {quantity} to "
                 f"{low if below else high:.6g} {unit} ({how} on the file's "
                 f"{values.min():.6g}..{values.max():.6g} {unit} reaches {low:.6g}..{high:.6g}), "
                 f"outside the valid {valid_low:g}..{valid_high:g} {unit} of an EPW file. "
