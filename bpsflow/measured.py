@@ -330,6 +330,12 @@ def _value_columns(header: list[str], stamp_column: str, config: Config,
                    required: Sequence[str] | None, path: Path, notes: list[str]) -> list[str]:
     """The value columns; errors when a required output (or every output) is missing."""
     columns = [name for name in header if name != stamp_column]
+    unnamed = [i + 1 for i, name in enumerate(header) if not name.strip()]
+    if unnamed:
+        # a row index written beside the data (pandas' to_csv) is no measurement
+        notes.append(f"{path.name}: column(s) {', '.join(map(str, unnamed))} of line 1 have no "
+                     f"name (a row index written with the data?): left out")
+        columns = [name for name in columns if name.strip()]
     unknown = [name for name in columns if name not in config.outputs]
     needed = list(required) if required is not None else []
     missing = [name for name in needed if name not in columns]

@@ -205,6 +205,13 @@ def test_a_misspelled_output_column_is_an_error_where_no_column_is_required(case
                           f"did you mean '{HEATING}'", command="run", extra=("--no-progress",))
 
 
+def test_a_row_index_written_with_the_data_is_left_out_with_a_note(case):
+    """pandas' to_csv with its index: a first column with no name is no measurement."""
+    indexed = case.hourly.reset_index()
+    text = assert_ok(case.validate(case.text(indexed.to_csv(), "indexed.csv")))
+    assert "column(s) 1 of line 1 have no name" in " ".join(text.split())
+
+
 def test_no_timestamp_column(case):
     renamed = case.hourly.reset_index().rename(columns={"timestamp": "time"})
     _assert_fails_cleanly(case, case.text(renamed.to_csv(index=False), "nostamp.csv"),
