@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
 import os
 import re
 from collections.abc import Mapping
@@ -321,6 +322,9 @@ class OutputVariable(_Strict):
             if low is not None and high is not None and low >= high:
                 raise ValueError(f"plausible: expected [low, high] with low < high, got "
                                  f"[{low:g}, {high:g}]")
+        if self.scale == 0 or not math.isfinite(self.scale):
+            raise ValueError(f"scale: {self.scale:g} makes every value {self.scale:g}; expected a "
+                             f"finite, non-zero factor (e.g. 0.001 for W to kW)")
         if (self.variable is None) == (self.meter is None):
             raise ValueError("give either 'variable' (with 'key') or 'meter'")
         if self.variable is not None and not self.key:

@@ -396,3 +396,11 @@ def test_a_truth_that_is_a_folder_is_named_as_such(tmp_path):
                        "is not a file; expected a YAML truth file")
     assert_clean_error(invoke("synth", config, "--truth", tmp_path / "none.yaml"),
                        "file not found; expected a YAML truth file")
+
+
+def test_an_output_scale_of_zero_is_refused(tmp_path):
+    raw = _surrogate_raw()
+    name = next(iter(raw["outputs"]))
+    raw["outputs"][name]["scale"] = 0
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       f"outputs.{name}", "scale: 0")
