@@ -452,3 +452,11 @@ def test_decide_waits_for_no_calibrate_writing_its_calibration_folder(tmp_path):
         holder.kill()
     assert result.exit_code == 2, result.output
     assert "is in use by another bpsflow process" in " ".join(result.output.split())
+
+
+def test_two_edits_of_one_field_name_the_earlier_edit(tmp_path, hydronic):
+    message = _bad(tmp_path, lambda t: t.replace(
+        "field: Setpoint at Outdoor High Temperature}", "field: Setpoint at Outdoor Low Temperature}"),
+        hydronic)
+    assert "change.edits[1]: change.edits[0] already edits" in message
+    assert "intervention_edit" not in message

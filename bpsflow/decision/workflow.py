@@ -164,6 +164,13 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
         edited = {_field_key(found) for found in fields}
         clash = [(p.name, found.obj.where) for found in targeted_fields(changed)
                  if _field_key(found) in edited for p in found.parameters]
+        earlier = [n for n, _ in clash if n.startswith("intervention_edit_")]
+        if earlier:
+            # the intervention's own earlier edit, named as the user wrote it
+            first = int(earlier[0].split("_")[2])
+            raise BpsflowError(f"change.edits[{i}]: change.edits[{first}] already edits "
+                               f"{clash[0][1]} {edit.target.field}; give each field one edit",
+                               source=source)
         if clash:
             raise BpsflowError(f"change.edits[{i}]: parameter {clash[0][0]} already sets "
                                f"{clash[0][1]} {edit.target.field}; change it "
