@@ -148,6 +148,7 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
             raise BpsflowError(f"change.overlay: with the change, {exc.message}",
                                source=source) from None
     added: dict[str, float] = {}
+    edit_of: dict[str, int] = {}      # added parameter -> the edit (its index) that made it
     moved = False                     # whether any edit changes a field's value
     for i, edit in enumerate(intervention.change.edits):
         probe = changed.model_copy(deep=True)
@@ -164,11 +165,10 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
         edited = {_field_key(found) for found in fields}
         clash = [(p.name, found.obj.where) for found in targeted_fields(changed)
                  if _field_key(found) in edited for p in found.parameters]
-        earlier = [n for n, _ in clash if n.startswith("intervention_edit_")]
+        earlier = [edit_of[n] for n, _ in clash if n in edit_of]
         if earlier:
             # the intervention's own earlier edit, named as the user wrote it
-            first = int(earlier[0].split("_")[2])
-            raise BpsflowError(f"change.edits[{i}]: change.edits[{first}] already edits "
+            raise BpsflowError(f"change.edits[{i}]: change.edits[{earlier[0]}] already edits "
                                f"{clash[0][1]} {edit.target.field}; give each field one edit",
                                source=source)
         if clash:
@@ -205,6 +205,7 @@ def intervention_config(config: Config, intervention: Intervention, source: Path
                                    field=edit.target.field)],
                 description=f"{found.obj.where}: {edit.target.field} {found.nominal:g} -> {value:g}"))
             added[name] = float(value)
+            edit_of[name] = i
     if not moved and not _overlay_changes(config, changed):
         what = ("change.overlay: it gives every parameter and model file the definition it "
                 "has" if not intervention.change.edits else

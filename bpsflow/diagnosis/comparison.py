@@ -16,7 +16,12 @@ import math
 import numpy as np
 from scipy import stats
 
-from bpsflow.diagnosis.structure import _BARTLETT_C1, _BARTLETT_C2, default_hac_lags
+from bpsflow.diagnosis.structure import (
+    _BARTLETT_C1,
+    _BARTLETT_C2,
+    autocorrelation,
+    default_hac_lags,
+)
 
 LOSSES = ("squared", "absolute")
 #: Relative bias of the long-run variance tolerated by the default lag length.
@@ -234,9 +239,7 @@ def effective_fraction(residuals: np.ndarray) -> float:
     values = values[np.isfinite(values)]
     if values.size < 3 or float(np.std(values)) == 0.0:
         return 1.0
-    centred = values - values.mean()
-    phi = float(centred[1:] @ centred[:-1] / (centred @ centred))
-    phi = min(max(phi, 0.0), 0.99)
+    phi = min(max(float(autocorrelation(values, lags=1)[1]), 0.0), 0.99)
     return (1.0 - phi) / (1.0 + phi)
 
 
