@@ -382,10 +382,12 @@ def instances(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     samples = read_samples(rd)
     require_same_design(cfg, rd, "instances")
     chosen = choose_backend(cfg, err_console.print)
+    unknown = [i for i in instance if i not in samples.index]
+    if unknown:
+        raise BpsflowError(f"--instance {unknown[0]}: not in samples.parquet "
+                           f"(0..{len(samples) - 1})")
     out = prepare_run_dir(out or rd / "inspect", where="--out")
     for i in instance:
-        if i not in samples.index:
-            raise BpsflowError(f"--instance {i}: not in samples.parquet (0..{len(samples) - 1})")
         files = chosen.write_inputs(cfg, samples.loc[i].to_dict(), out / f"{i:06d}")
         console.print(f"instance {i}: " + ", ".join(str(p) for p in files))
 
@@ -808,16 +810,19 @@ def calibrate(config: Path = ConfigArg,
     from bpsflow.calibration.command import calibrate as run_calibration
     from bpsflow.calibration.workflow import settings_of
 
-    if scenarios and (outputs or resolution):
+    if scenarios and (outputs is not None or resolution):
         # each scenario names its own outputs and resolution: an override would be ignored
-        raise BpsflowError(f"{'--outputs' if outputs else '--resolution'}: --scenarios "
+        raise BpsflowError(f"{'--outputs' if outputs is not None else '--resolution'}: --scenarios "
                            "calibrates each scenario of calibration.scenarios with its own "
                            "outputs and resolution; drop the option, or drop --scenarios")
     if method == "deterministic" and any(v is not None for v in (chains, warmup, samples)):
         raise BpsflowError("--chains/--warmup/--samples set the Bayesian sampler; --method "
                            "deterministic does not sample")
     cfg = _load(config, run_dir, _execution(jobs, engine, scheduler))
-    output_names = [o.strip() for o in outputs.split(",")] if outputs else None
+    output_names = [o.strip() for o in outputs.split(",")] if outputs is not None else None
+    if output_names is not None and not all(output_names):
+        raise BpsflowError(f"--outputs '{outputs}': expected comma-separated output names, "
+                           f"some of {', '.join(sorted(cfg.outputs))}", source=cfg.source)
     for name in output_names or []:
         if name not in cfg.outputs:
             raise BpsflowError(f"--outputs: '{name}' is not an output of the config (expected "

@@ -115,7 +115,10 @@ def write_outputs(validations: list[TestValidation], out_dir: Path, q: float,
     ``measured`` (:meth:`bpsflow.measured.MeasuredData.record`: the file, the
     notes of reading it, the aggregation per column) is recorded in the JSON.
     """
-    out_dir.mkdir(parents=True, exist_ok=True)
+    from bpsflow.simulation.rundir import prepare_run_dir
+
+    # both folders first: a figures path that is a file is refused before anything is written
+    prepare_run_dir(out_dir / "figures", where="the validation folder")
     table = pd.DataFrame([v.row for v in validations])
     csv = write_csv(table, out_dir / "validation.csv", index=False, float_format="%.6g")
     payload = {"q": q, "type_i_risk": 1 - q, **({"measured": measured} if measured else {}),

@@ -587,3 +587,32 @@ def test_an_unknown_output_of_the_outputs_option_names_the_option(tmp_path):
     result = invoke("calibrate", config, "--measured", tmp_path / "nowhere.csv",
                     "--outputs", "heating_powr_w")
     assert_clean_error(result, "--outputs: 'heating_powr_w' is not an output of the config")
+
+
+@pytest.mark.parametrize("declared, scale, reported, passes", [
+    ("W", 1.0, "W", True), ("°C", 1.0, "C", True), ("degC", 1.0, "C", True),
+    ("W", 10.0, "W", True),                    # a multiplier, not a conversion
+    ("kWh", 1 / 3.6e6, "J", True), ("kWh", -1 / 3.6e6, "J", True),
+    ("kWh/m2", 1 / 3.6e6 / 120, "J", True),    # the user's own conversion
+    ("", 1.0, "J", True), ("kWh", 1.0, "", True),
+    ("kWh", 1.0, "J", False), ("kWh", 1e-3, "J", False), ("C", 1.0, "W", False),
+    ("kW", 1.0, "W", False),
+])
+def test_declared_units_against_the_reported_unit(declared, scale, reported, passes):
+    from bpsflow.units import unit_mismatch
+
+    mismatch = unit_mismatch(declared, scale, reported)
+    assert (mismatch is None) == passes
+    if not passes:
+        assert reported in mismatch and declared in mismatch
+
+
+@pytest.mark.energyplus
+def test_check_refuses_an_output_unit_energyplus_does_not_report(tmp_path):
+    """A W variable declared kWh (scale 1) would be summed as energy when measured data are
+    aggregated: check's trial run compares the declared unit with EnergyPlus's."""
+    raw = short_raw()
+    name = next(iter(raw["outputs"]))
+    raw["outputs"][name]["unit"] = "kWh"
+    assert_clean_error(invoke("check", write_config(tmp_path, raw)),
+                       f"outputs.{name}.unit", "reports it in W, not kWh")

@@ -706,3 +706,28 @@ def test_synth_again_keeps_the_earlier_synthetic_data(tmp_path):
     kept = list((folder / "previous").glob("*/measured.csv"))
     assert len(kept) == 1 and kept[0].read_text() == first
     assert (folder / "measured.csv").read_text() != first
+
+
+def test_refusals_of_instances_and_validate_leave_no_folder_or_file_behind(finished, tmp_path):
+    """An unknown --instance used to leave an empty inspect/ folder, and validate wrote
+    validation.json before finding that its figures folder was a file."""
+    config = copy_run(finished, tmp_path)
+    run = tmp_path / "run"
+    assert_clean_error(invoke("instances", config, "-i", "0", "-i", "-1"), "--instance -1")
+    assert not (run / "inspect").exists()
+    import shutil
+
+    figures = run / "figures"
+    shutil.rmtree(figures)
+    figures.write_text("not a folder")
+    (run / "validation.json").unlink()
+    assert_clean_error(invoke("validate", config, "--measured", run / "truth" / "measured.csv"),
+                       "is a file")
+    assert not (run / "validation.json").exists()
+
+
+def test_a_blank_outputs_option_is_refused(finished, tmp_path):
+    config = copy_run(finished, tmp_path)
+    result = invoke("calibrate", config, "--measured", tmp_path / "run" / "truth" / "measured.csv",
+                    "--outputs", "")
+    assert_clean_error(result, "--outputs ''", "comma-separated output names")

@@ -348,6 +348,10 @@ def test_discomfort_needs_a_temperature_and_an_edit_a_consistent_range(tmp_path,
     on_energy = _bad(tmp_path, lambda t: t.replace("output: meeting_room_air_temperature_c",
                                                    "output: heating_kwh"), hydronic)
     assert "discomfort" in on_energy and "°C" in on_energy and "heating_kwh" in on_energy
+    summed = _bad(tmp_path, lambda t: t.replace("output: heating_kwh, statistic: total",
+                                                "output: meeting_room_air_temperature_c, "
+                                                "statistic: total"), hydronic)
+    assert "statistic" in summed and "meeting_room_air_temperature_c" in summed
     crossed = _bad(tmp_path, lambda t: t.replace("add: -5\n    minimum: 25",
                                                  "add: -5\n    minimum: 25\n    maximum: 20",
                                                  1), hydronic)

@@ -42,6 +42,7 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from bpsflow.config import Config, IdfTarget, SafeName
 from bpsflow.errors import BpsflowError
+from bpsflow.units import normalise_unit
 from bpsflow.schema import StrictModel
 
 
@@ -234,7 +235,12 @@ def load_intervention(path: Path, config: Config) -> Intervention:
                                f"'{outcome.output}', expected one of {sorted(config.outputs)}",
                                source=path)
         unit = (config.outputs[outcome.output].unit or "").strip()
-        if outcome.statistic == "discomfort" and unit.upper() not in ("C", "°C", "DEGC"):
+        if outcome.statistic == "total" and normalise_unit(unit) in ("C", "K", "%"):
+            raise BpsflowError(f"outcomes[{i}] ({outcome.name}).statistic: a total of "
+                               f"'{outcome.output}' ({unit}) adds up a state, not a quantity; "
+                               f"expected mean or discomfort for a {unit} output, or total of an "
+                               f"energy (e.g. kWh)", source=path)
+        if outcome.statistic == "discomfort" and normalise_unit(unit) != "C":
             raise BpsflowError(f"outcomes[{i}] ({outcome.name}): discomfort counts degree-hours "
                                f"under a setpoint, so its output must be a temperature in °C; "
                                f"'{outcome.output}' is in {unit or 'no unit'}", source=path)

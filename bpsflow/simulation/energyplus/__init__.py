@@ -37,6 +37,7 @@ from bpsflow.simulation.energyplus.instances import (
 from bpsflow.simulation.model_inputs import check_model_inputs
 from bpsflow.simulation.rundir import INSTANCE_OUTPUTS, RESULT_COLUMNS, InstanceRecord, instance_dir
 from bpsflow.simulation.target_bounds import check_sample_values
+from bpsflow.units import unit_mismatch
 
 if TYPE_CHECKING:
     from bpsflow.config import Config
@@ -114,6 +115,7 @@ def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame,
     is_meter = raw["is_meter"].to_numpy() == 1
     frequencies = raw["frequency"].to_numpy()
     values = raw["value"].to_numpy(dtype=float)
+    units = raw["units"].to_numpy() if "units" in raw else np.full(len(raw), "", dtype=object)
     parts: dict[str, list[np.ndarray]] = {"test": [], "output": [], "timestamp": [], "value": []}
     for test in config.model.tests:
         first, _, last = test_dates(test, config.model.year)
@@ -133,6 +135,10 @@ def tidy_outputs(config: Config, instance: int | str, raw: pd.DataFrame,
                 raise BpsflowError(
                     f"outputs.{output} ({spec.label}, {spec.frequency}) has no values in the "
                     f"simulation results for test {test.name}{hint}", source=config.source)
+            mismatch = unit_mismatch(spec.unit, spec.scale, str(units[rows][0]))
+            if mismatch:
+                raise BpsflowError(f"outputs.{output}.unit ({spec.label}): {mismatch}",
+                                   source=config.source)
             count = int(rows.sum())
             parts["test"].append(np.full(count, test.name, dtype=object))
             parts["output"].append(np.full(count, output, dtype=object))
@@ -298,13 +304,23 @@ class EnergyPlusBackend:
         last = first + pd.Timedelta(days=days - 1)
         trial.model.periods = [Period(name=test.period, start=f"{first:%m-%d}",
                                       end=f"{last:%m-%d}")]
-        trial.model.tests = [test.model_copy(update={"days": days, "warmup_days": days - 1})]
+        # every test's outputs, so a missing variable or a unit mismatch shows here, not in
+        # every instance of a run
+        outputs = list(dict.fromkeys(o for t in trial.model.tests for o in t.outputs))
+        trial.model.tests = [test.model_copy(update={"days": days, "warmup_days": days - 1,
+                                                     "outputs": outputs})]
         trial.parameters = [p for p in trial.parameters
                             if all(isinstance(t, IdfTarget) for t in p.targets)]
         binary = self.binary(config)
         with tempfile.TemporaryDirectory(prefix="bpsflow-check-") as workdir:
             record, _ = run_instance(trial, 0, nominal_sample(trial), Path(workdir), binary,
                                      idd_path(binary))
+        if record.status != "ok" and not record.error.startswith("period "):
+            # the engine was not the problem: writing the instance or reading its outputs was
+            raise BpsflowError(f"the nominal model's trial run (test {test.name}, {first:%m-%d}, "
+                               f"{days} day(s)): "
+                               + record.error.removeprefix(f"{config.source}: "),
+                               source=config.source)
         if record.status != "ok":
             mismatch = version_mismatch(config.model)
             raise BpsflowError(

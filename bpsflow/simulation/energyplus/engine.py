@@ -141,7 +141,8 @@ _WEATHER_RUN_PERIOD = 3
 _QUERY = """
 SELECT t.Month AS month, t.Day AS day, t.Hour AS hour, t.Minute AS minute,
        d.Name AS variable, COALESCE(d.KeyValue, '') AS key, d.IsMeter AS is_meter,
-       d.ReportingFrequency AS frequency, r.Value AS value
+       d.ReportingFrequency AS frequency, r.Value AS value,
+       COALESCE(d.Units, '') AS units
 FROM ReportData r
 JOIN ReportDataDictionary d ON r.ReportDataDictionaryIndex = d.ReportDataDictionaryIndex
 JOIN Time t ON r.TimeIndex = t.TimeIndex
@@ -167,8 +168,8 @@ def read_outputs(sql_path: Path, year: int) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Columns ``timestamp, variable, key, is_meter, frequency, value``
-        (``key`` is empty for meters).
+        Columns ``timestamp, variable, key, is_meter, frequency, value, units``
+        (``key`` is empty for meters; ``units`` as EnergyPlus reports them).
     """
     try:
         connection = sqlite3.connect(f"file:{sql_path}?mode=ro", uri=True)
@@ -181,8 +182,8 @@ def read_outputs(sql_path: Path, year: int) -> pd.DataFrame:
                            source=sql_path) from None
     # Columns from the plain rows, timestamps by array arithmetic: a few milliseconds per
     # run where pandas' SQL reader and date parsing cost several times that.
-    month, day, hour, minute, variable, key, is_meter, frequency, value = (
-        zip(*rows) if rows else ([],) * 9)
+    month, day, hour, minute, variable, key, is_meter, frequency, value, units = (
+        zip(*rows) if rows else ([],) * 10)
     month_starts = np.array([f"{year}-{m:02d}-01" for m in range(1, 13)], dtype="datetime64[us]")
     month_index = np.asarray(month, dtype=np.int64) - 1
     offsets = ((np.asarray(day, dtype=np.int64) - 1) * 86400
@@ -193,4 +194,5 @@ def read_outputs(sql_path: Path, year: int) -> pd.DataFrame:
                          "key": list(key),
                          "is_meter": np.asarray(is_meter, dtype=np.int64),
                          "frequency": list(frequency),
-                         "value": np.asarray(value, dtype=float)})
+                         "value": np.asarray(value, dtype=float),
+                         "units": list(units)})
