@@ -42,8 +42,8 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from bpsflow.config import Config, IdfTarget, SafeName
 from bpsflow.errors import BpsflowError
-from bpsflow.units import normalise_unit
 from bpsflow.schema import StrictModel
+from bpsflow.units import normalise_unit
 
 
 class _Strict(StrictModel):
