@@ -616,3 +616,38 @@ def test_check_refuses_an_output_unit_energyplus_does_not_report(tmp_path):
     raw["outputs"][name]["unit"] = "kWh"
     assert_clean_error(invoke("check", write_config(tmp_path, raw)),
                        f"outputs.{name}.unit", "reports it in W, not kWh")
+
+
+def test_a_field_reached_twice_by_one_relative_parameter_is_refused(tmp_path):
+    """'*' plus the object's own name moved SouthWallInsulation by the factor squared."""
+    raw = surrogate_raw()
+    raw["parameters"].append({"name": "k_twice", "mode": "relative",
+                              "distribution": {"type": "uniform", "lower": 0.9, "upper": 1.1},
+                              "targets": [{**CONDUCTIVITY, "name": "*"}, dict(CONDUCTIVITY)]})
+    raw["parameters"] = [p for p in raw["parameters"]
+                         if p["name"] == "k_twice" or all(
+                             t.get("field") != "Conductivity" for t in p["targets"])]
+    config = write_config(tmp_path, raw)
+    for command in ("check", "sample"):
+        assert_clean_error(invoke(command, config), "(k_twice).targets[1]",
+                           "Material 'SouthWallInsulation' Conductivity", "apply twice")
+
+
+def test_a_model_with_two_objects_of_one_name_is_refused(tmp_path):
+    """The surrogate used the second copy; EnergyPlus refuses the model."""
+    raw = surrogate_raw()
+    text = Path(raw["model"]["idf"]).read_text()
+    raw["model"]["idf"] = str(tmp_path / "twice.idf")
+    (tmp_path / "twice.idf").write_text(
+        text + "\nMaterial, SouthWallInsulation, Rough, 0.01, 2.0, 30, 1400;\n")
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "twice.idf", "Material 'SouthWallInsulation' is defined twice")
+
+
+def test_name_patterns_never_select_the_objects_bpsflow_adds():
+    from bpsflow.simulation.targets import TOOL_OBJECT_PREFIX, matches_name
+
+    added = TOOL_OBJECT_PREFIX + "infiltration_v2"
+    assert matches_name("*", "Office Infiltration") and not matches_name("*", added)
+    assert not matches_name("*infiltration*", added)
+    assert matches_name(TOOL_OBJECT_PREFIX + "*", added) and matches_name(added.upper(), added)

@@ -72,6 +72,7 @@ from bpsflow.config import Config, IdfTarget, Parameter
 from bpsflow.distributions import Uniform
 from bpsflow.errors import BpsflowError
 from bpsflow.files import write_text_atomic
+from bpsflow.simulation.targets import TOOL_OBJECT_PREFIX
 
 if TYPE_CHECKING:
     from bpsflow.simulation.idf import IdfModel, IdfObject
@@ -81,8 +82,8 @@ AIR_HEAT_CAPACITY_J_M3K = 1.2 * 1005.0
 
 SNIPPET_PACKAGE = "bpsflow.extensions_idf"
 
-#: Prefix of every object name diagnose adds to a model.
-NAME_PREFIX = "bpsflow_"
+#: Prefix of every object name diagnose adds to a model (user patterns never select them).
+NAME_PREFIX = TOOL_OBJECT_PREFIX
 
 
 @dataclass(frozen=True)

@@ -297,11 +297,31 @@ _UNIQUE_NAMES = ("SCHEDULE:", "ZONEINFILTRATION:", "ZONEVENTILATION:", "OTHEREQU
                  "INTERNALMASS", "MATERIAL", "CONSTRUCTION")
 
 
+#: Types whose names EnergyPlus also refuses twice (a second copy the surrogate would
+#: silently take instead of the first), checked in the model file itself.
+_UNIQUE_IN_MODEL = _UNIQUE_NAMES + ("WINDOWMATERIAL:", "BUILDINGSURFACE:", "FENESTRATIONSURFACE:",
+                                    "LIGHTS", "ELECTRICEQUIPMENT", "PEOPLE")
+
+
+def _check_model_names(objects: list[IdfObject], path: Path) -> None:
+    seen: dict[tuple[str, str], IdfObject] = {}
+    for obj in objects:
+        if not obj.name or not (obj.type == "ZONE" or obj.type.startswith(_UNIQUE_IN_MODEL)):
+            continue
+        first = seen.setdefault((obj.type, obj.name.upper()), obj)
+        if first is not obj:
+            raise BpsflowError(f"{obj.where} is defined twice; EnergyPlus refuses a second "
+                               f"object of one type and name (expected unique names: rename "
+                               f"or delete one)", source=path)
+
+
 @lru_cache(maxsize=8)
 def _assemble(stamps: tuple[tuple[Path, int, int], ...]) -> IdfModel:
     objects: list[IdfObject] = []
     for i, (path, _, _) in enumerate(stamps):
         part = read_idf.__wrapped__(path) if i == 0 else _read_snippet(path)
+        if i == 0:
+            _check_model_names(part.objects, path)
         for obj in part.objects:
             if obj.type == _SCHEDULE_FILE and len(obj.fields) > _FILE_NAME:
                 name = obj.fields[_FILE_NAME]

@@ -93,6 +93,7 @@ def targeted_fields(config: Config) -> list[TargetedField]:
 
     objects = model_objects(config.model)
     found: dict[tuple[int, int], TargetedField] = {}
+    set_by: dict[tuple[int, int, int], int] = {}   # (parameter, object, field) -> target
     for i, parameter in enumerate(config.parameters):
         for j, target in enumerate(parameter.targets):
             if not isinstance(target, IdfTarget):
@@ -107,6 +108,14 @@ def targeted_fields(config: Config) -> list[TargetedField]:
             of_type = [(k, o) for k, o in enumerate(objects.objects)
                        if normalise(o.type) == normalise(target.object)]
             for k, obj in select_objects(of_type, target.name, lambda pair: pair[1].name):
+                earlier = set_by.setdefault((i, k, position), j)
+                if earlier != j and parameter.mode != "absolute":
+                    # each target applies the change: the field would move twice
+                    raise BpsflowError(
+                        f"{where}: {obj.where} {target.field} is also selected by "
+                        f"targets[{earlier}], so the {parameter.mode} change would apply "
+                        f"twice; expected each field once per parameter (narrow the "
+                        f"name pattern or drop one target)", source=config.source)
                 entry = found.setdefault((k, position), TargetedField(
                     obj=obj, position=position, limits=limits, nominal=_nominal(obj, position)))
                 if all(p is not parameter for p in entry.parameters):

@@ -18,7 +18,8 @@ from bpsflow.simulation.idf import normalise
 if TYPE_CHECKING:
     from bpsflow.config import IdfTarget
 
-__all__ = ["apply_mode", "normalise", "matches_name", "select_objects", "targets_field"]
+__all__ = ["TOOL_OBJECT_PREFIX", "apply_mode", "normalise", "matches_name", "select_objects",
+           "targets_field"]
 
 T = TypeVar("T")
 
@@ -32,18 +33,27 @@ def apply_mode(mode: str, nominal: float, value: float) -> float:
     return value
 
 
+#: Prefix of every object name bpsflow adds to a model (diagnose's extensions, hidden effects).
+TOOL_OBJECT_PREFIX = "bpsflow_"
+
+
 def matches_name(pattern: str, name: str) -> bool:
     """Whether a target's object name selects ``name`` (no case).
 
-    ``*`` selects every object; a name with ``*`` or ``?`` is a shell-style
-    pattern (``Office*`` selects ``Office`` and ``Office 07``); any other
-    name selects that object alone.
+    ``*`` selects every object of the model; a name with ``*`` or ``?`` is a
+    shell-style pattern (``Office*`` selects ``Office`` and ``Office 07``);
+    any other name selects that object alone. A pattern never selects the
+    objects bpsflow adds (names starting :data:`TOOL_OBJECT_PREFIX`, e.g. the
+    infiltration diagnose fits) unless it starts with that prefix itself: a
+    user's ``*`` means the model's objects, and scaling an added object's
+    fitted value (or its empty fields) would change what diagnose measures.
     """
-    if pattern == "*":
-        return True
     wanted, name = pattern.strip().upper(), name.strip().upper()
     if "*" in wanted or "?" in wanted:
-        return fnmatch.fnmatchcase(name, wanted.replace("[", "[[]"))
+        prefix = TOOL_OBJECT_PREFIX.upper()
+        if name.startswith(prefix) and not wanted.startswith(prefix):
+            return False
+        return wanted == "*" or fnmatch.fnmatchcase(name, wanted.replace("[", "[[]"))
     return wanted == name
 
 
