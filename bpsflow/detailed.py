@@ -729,7 +729,13 @@ def true_convection(config: Config, sample: dict[str, float]) -> dict[str, dict]
     """
     idf = _idf(config)
     out = {}
+    from bpsflow.simulation.idf import surface_user_curves
+
     for surface_class, surface in sensor_surfaces(config).surfaces.items():
+        if surface_user_curves(idf, surface)[0] is None:
+            # EnergyPlus's own inside algorithm (no fitted law to compare a refinement with)
+            out[surface_class] = {"surface": surface, "curve": None}
+            continue
         curve = inside_convection_curve(idf, surface)
         # Curve:Exponent is C1 + C2 x^C3 with x = |ΔT|: α = C2, n = C3 (C1 = 0 in the model).
         out[surface_class] = {"surface": surface, "curve": curve, **{
@@ -753,11 +759,25 @@ def true_glazing(config: Config, sample: dict[str, float]) -> dict[str, float | 
     construction = idf.find("CONSTRUCTION", window.get("Construction Name"))
     glass_names = {g.name.upper() for g in idf.of_type("WINDOWMATERIAL:GLAZING")}
     layers = [f for f in construction.fields[1:] if f.strip().upper() in glass_names]
-    if len(layers) != 2:
-        raise BpsflowError(f"window construction '{construction.name}': expected two glass "
-                           f"layers for the double-glazed transmittance", source=idf.path)
-    outer, inner = layers
     g = "WindowMaterial:Glazing"
+    if len(layers) != 2:
+        # only the double-glazed system has the closed form below; other windows report
+        # their outer pane (or nothing for a simple-glazing window)
+        if not layers:
+            return {"outer_pane": "", "inner_pane": "",
+                    "note": f"window construction '{construction.name}' has no "
+                            f"WindowMaterial:Glazing layer; no true transmittance reported"}
+        pane = layers[0]
+        tau = true_field_value(config, sample, g, pane, "Solar Transmittance at Normal Incidence")
+        dirt = true_field_value(config, sample, g, pane, "Dirt Correction Factor for Solar and "
+                                "Visible Transmittance", 1.0) or 1.0
+        return {"outer_pane": pane, "inner_pane": "", "single_pane_solar_transmittance": tau,
+                "dirt_correction_factor": dirt,
+                "single_pane_solar_transmittance_with_dirt": tau * dirt,
+                **({"system_solar_transmittance": tau * dirt} if len(layers) == 1 else
+                   {"note": f"{len(layers)} glass layers: the system transmittance is "
+                            f"not reported"})}
+    outer, inner = layers
 
     def field(pane: str, name: str, default: float | None = None) -> float:
         return true_field_value(config, sample, g, pane, name, default)
@@ -801,12 +821,21 @@ def true_boundary_temperatures(config: Config, sample: dict[str, float],
                          for surface, spec in boundary.surfaces.items()}, index=timestamps)
 
 
+#: EnergyPlus's ground reflectance when a model has no Site:GroundReflectance object.
+DEFAULT_GROUND_REFLECTANCE = 0.2
+
+
 def true_ground_reflectance(config: Config, sample: dict[str, float]) -> dict[str, float]:
     """Month name -> the instance's ground reflectance (Site:GroundReflectance)."""
     from bpsflow.simulation.idf import FIELDS
 
-    return {field.split()[0]: true_field_value(config, sample, "Site:GroundReflectance", "", field)
-            for field in FIELDS["SITE:GROUNDREFLECTANCE"]}
+    months = [field.split()[0] for field in FIELDS["SITE:GROUNDREFLECTANCE"]]
+    if not _idf(config).of_type("SITE:GROUNDREFLECTANCE"):
+        # without the object EnergyPlus takes 0.2 in every month (no parameter can move it:
+        # a target on it finds no object and is refused by check)
+        return dict.fromkeys(months, DEFAULT_GROUND_REFLECTANCE)
+    return {month: true_field_value(config, sample, "Site:GroundReflectance", "", field)
+            for month, field in zip(months, FIELDS["SITE:GROUNDREFLECTANCE"])}
 
 
 def true_gradient(config: Config, sample: dict[str, float]) -> float | None:

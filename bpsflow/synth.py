@@ -277,6 +277,9 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
     outputs = outputs.assign(instance="truth")
     backend = simulator.name
     measured = measurements_from_outputs(config, outputs, truth)
+    # everything that can fail is computed before the earlier data are moved aside
+    detailed_parts = detailed_measurements(config, sample, outputs, truth.seed) if detailed \
+        else None
     path = out_dir / MEASURED_FILE
     # earlier synthetic data (perhaps of another truth) are kept, not overwritten
     earlier = move_aside(out_dir, SYNTH_FILES) if path.exists() else None
@@ -291,9 +294,11 @@ def synthesize(config: Config, truth: Truth, out_dir: Path, backend: str | None 
                         for output in measured.columns},
               "noise_defaulted": sorted(set(measured.columns) - set(truth.noise)),
               "seed": truth.seed, "backend": backend}
-    if detailed:
-        record["detailed"] = write_detailed_measurements(config, sample, outputs, truth.seed,
-                                                         out_dir)
+    if detailed_parts is not None:
+        from bpsflow.detailed import write_detailed
+
+        readings, calibration, metadata, record["detailed"] = detailed_parts
+        write_detailed(out_dir, readings, calibration, metadata)
     write_json(out_dir / TRUTH_FILE, record)
     return path
 
@@ -319,17 +324,33 @@ def write_detailed_measurements(config: Config, sample: dict[str, float], output
     """Turn the truth instance's detailed outputs into sensor readings (seed §3.4.3–3.5).
 
     Writes ``detailed.csv``, ``sensor_calibration.csv`` and ``detailed.json``
-    into ``out_dir``. The sensor errors, the readings and the calibration
-    campaign each get their own random stream derived from the truth seed
-    (``measured.csv`` keeps the seed's own stream, so it does not change).
+    into ``out_dir`` (see :func:`detailed_measurements`) and returns the true
+    values behind them.
+    """
+    from bpsflow import detailed as d
+
+    readings, calibration, metadata, true = detailed_measurements(config, sample, outputs, seed)
+    d.write_detailed(out_dir, readings, calibration, metadata)
+    return true
+
+
+def detailed_measurements(config: Config, sample: dict[str, float], outputs: pd.DataFrame,
+                          seed: int) -> tuple[pd.DataFrame, pd.DataFrame, dict, dict]:
+    """The detailed sensor readings of the truth instance, computed before anything is written.
+
+    The sensor errors, the readings and the calibration campaign each get
+    their own random stream derived from the truth seed (``measured.csv``
+    keeps the seed's own stream, so it does not change).
 
     Returns
     -------
-    dict
-        The true values a refinement must not read (the ``detailed`` block of
-        ``truth.json``): each temperature sensor's bias and std, per surface
-        class the true α and n of h = α|ΔT|^n, the gradient, the ground
-        reflectance, the glazing transmittance and the boundary temperatures.
+    tuple
+        The readings, the sensor calibration table, the metadata
+        (``detailed.json``) and the true values a refinement must not read
+        (the ``detailed`` block of ``truth.json``): each temperature sensor's
+        bias and std, per surface class the true α and n of h = α|ΔT|^n, the
+        gradient, the ground reflectance, the glazing transmittance and the
+        boundary temperatures.
     """
     from bpsflow import detailed as d
 
@@ -341,6 +362,5 @@ def write_detailed_measurements(config: Config, sample: dict[str, float], output
     errors = d.draw_sensor_errors(true.columns, [seed, 1])
     readings = d.sensor_readings(true, errors, [seed, 2])
     calibration = d.calibration_campaign(errors, [seed, 3])
-    d.write_detailed(out_dir, readings, calibration, d.detailed_metadata(config, geometry,
-                                                                         calibration))
-    return d.true_values(config, sample, errors, boundary_c)
+    return (readings, calibration, d.detailed_metadata(config, geometry, calibration),
+            d.true_values(config, sample, errors, boundary_c))

@@ -7,6 +7,7 @@ tool's sake. These tests run real EnergyPlus on short periods.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -148,3 +149,26 @@ def test_every_command_runs_on_the_foreign_building(tmp_path):
     assert (tmp_path / "run" / "morris" / "sensitivity.csv").is_file()
     assert (tmp_path / "run" / "calibration" / "calibration.json").is_file()
     assert (tmp_path / "run" / "diagnosis" / "diagnosis.json").is_file()
+
+
+@pytest.mark.energyplus
+def test_detailed_measurements_of_a_model_without_the_test_cells_objects(tmp_path):
+    """No Site:GroundReflectance, no user convection curves: synth --detailed still writes
+    every file, with EnergyPlus's defaults as the true values (it stopped half-written,
+    after moving the earlier data aside)."""
+    raw = office_raw(tmp_path, days=3)
+    raw["detailed"] = {"zone": "SPACE1-1"}
+    config = write(tmp_path, raw, "office.yaml")
+    (tmp_path / "truth.yaml").write_text("values: {}\n")
+    for _ in range(2):     # the second run moves the first one's files aside, whole
+        result = runner.invoke(app, ["synth", str(config), "--truth", str(tmp_path / "truth.yaml"),
+                                     "--detailed", "--backend", "energyplus"])
+        assert result.exit_code == 0, result.output
+    truth = tmp_path / "run" / "truth"
+    record = json.loads((truth / "truth.json").read_text())["detailed"]
+    assert record["ground_reflectance"] == pytest.approx(0.2)
+    assert set(record["ground_reflectance_by_month"].values()) == {0.2}
+    assert all(c["curve"] is None for c in record["convection"].values())
+    assert (truth / "detailed.csv").is_file() and (truth / "detailed.json").is_file()
+    earlier = next((truth / "previous").iterdir())
+    assert {p.name for p in earlier.iterdir()} >= {"measured.csv", "truth.json", "detailed.csv"}

@@ -103,3 +103,4 @@ def test_every_command_on_a_third_building(tmp_path):
     _ok(["diagnose", c, "--measured", str(measured), "--no-progress"])
     diagnosis = json.loads((run / "diagnosis" / "diagnosis.json").read_text())
     assert diagnosis.get("verdict")
+
