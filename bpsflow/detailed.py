@@ -728,7 +728,7 @@ def true_convection(config: Config, sample: dict[str, float]) -> dict[str, dict]
     The class's surface is its :func:`sensor_surfaces` one.
     """
     idf = _idf(config)
-    out = {}
+    out: dict[str, dict] = {}
     from bpsflow.simulation.idf import surface_user_curves
 
     for surface_class, surface in sensor_surfaces(config).surfaces.items():
