@@ -13,6 +13,7 @@ values stand.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -40,6 +41,10 @@ def read_boundary_file(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     if len(frame) not in (8760, 8784):
         raise BpsflowError(f"expected one row per hour of a year (8760), found {len(frame)}",
                            source=path)
+    stamp_column = next((c for c in frame.columns if str(c).strip().lower() in STAMP_COLUMNS),
+                        None)
+    if stamp_column is not None:
+        check_hour_order(frame[stamp_column].astype(str).tolist(), path, stamp_column)
     values = frame[list(columns)]
     if not np.isfinite(values.to_numpy(dtype=float)).all():
         bad = int(np.argwhere(~np.isfinite(values.to_numpy(dtype=float)))[0][0])
@@ -56,6 +61,68 @@ def read_boundary_file(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
                                f"the {low:g}..{high:g} °C a surface beside a room takes "
                                f"({int(outside.sum())} value(s) outside){hint}", source=path)
     return frame
+
+
+#: Column names read as the boundary file's timestamps (no case).
+STAMP_COLUMNS = ("timestamp", "time", "date/time", "datetime", "date")
+
+_MONTH_DAY = re.compile(r"\s*(\d{1,2})/(\d{1,2})\s+(\d{1,2}):(\d{2})(?::\d{2})?\s*$")
+_ISO = re.compile(r"\s*(\d{4})-(\d{2})-(\d{2})[ T](\d{2}):(\d{2})(?::\d{2})?\s*$")
+
+
+def check_hour_order(stamps: list[str], path: Path, column: str) -> None:
+    """Refuse a boundary file whose timestamps are not the year's hours in order.
+
+    EnergyPlus's Schedule:File, and the sequences drawn from the file, read it
+    by row: row *k* is the hour ending at *k* + 1 hours after 1 January
+    00:00. A timestamp column is therefore checked, not trusted: sorted
+    otherwise, hour-beginning or shifted stamps would put every value at
+    another hour without a word. ``MM/DD HH:MM`` (EnergyPlus's, 24:00 ends a
+    day) and ISO ``YYYY-MM-DD HH:MM`` stamps are read; the year is ignored.
+
+    Raises
+    ------
+    BpsflowError
+        Naming the file, the column and the first row that is not the
+        expected hour (with the hour it should be).
+    """
+    leap = len(stamps) == 8784
+    month_starts = np.cumsum([0, 31, 29 if leap else 28, 31, 30, 31, 30, 31, 31, 30, 31, 30])
+    first_year = None
+    for row, text in enumerate(stamps):
+        iso = _ISO.match(text)
+        found = iso or _MONTH_DAY.match(text)
+        if found is None:
+            raise BpsflowError(f"column '{column}', row {row + 2}: '{text}' is not a timestamp "
+                               f"(expected MM/DD HH:MM, hour-ending, e.g. '{_hour_text(row, leap)}')",
+                               source=path)
+        numbers = [int(g) for g in found.groups()]
+        year = numbers.pop(0) if iso else None
+        month, day, hour, minute = numbers
+        if not (1 <= month <= 12 and 1 <= day <= 31 and hour <= 24 and minute < 60):
+            raise BpsflowError(f"column '{column}', row {row + 2}: '{text}' is not a valid "
+                               f"date and time (expected '{_hour_text(row, leap)}')", source=path)
+        first_year = year if first_year is None else first_year
+        # an ISO stamp may end the year at the next one's 01-01 00:00
+        later_year = 0 if year is None or first_year is None else year - first_year
+        hours = (later_year * (366 if leap else 365) + int(month_starts[month - 1]) + day - 1) \
+            * 24 + hour + minute / 60
+        if hours != row + 1:
+            problem = ("the stamps begin their hours (00:00..23:00): expected hour-ending "
+                       "stamps (01:00..24:00)" if hours == row else
+                       "the rows are not the year's hours in order")
+            raise BpsflowError(f"column '{column}', row {row + 2}: '{text}', expected "
+                               f"'{_hour_text(row, leap)}': "
+                               f"{problem}; the file is read by row (row k is the hour ending "
+                               f"k h after 1 January 00:00), so each row must be its hour",
+                               source=path)
+
+
+def _hour_text(row: int, leap: bool) -> str:
+    """Row ``row``'s hour-ending stamp as EnergyPlus writes it (``MM/DD HH:MM``, 24:00)."""
+    expected = pd.Timestamp(2024 if leap else 2025, 1, 1) + pd.Timedelta(hours=row + 1)
+    return f"{expected:%m/%d %H:%M}" if expected.hour else \
+        f"{expected - pd.Timedelta(days=1):%m/%d} 24:00"
 
 
 def period_hours(config: Config, n_rows: int | None = None) -> np.ndarray:

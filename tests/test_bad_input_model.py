@@ -329,8 +329,30 @@ def _boundary_text(raw, folder):
     return path
 
 
+def _boundary_stamps(change):
+    def edit(raw, folder):
+        frame = pd.read_csv(Path(raw["model"]["boundary"]["file"]))
+        path = folder / "boundary.csv"
+        change(frame).to_csv(path, index=False)
+        raw["model"]["boundary"]["file"] = str(path)
+        return path
+    return edit
+
+
+def _reversed(frame):
+    return frame.iloc[::-1]
+
+
+def _hour_beginning(frame):
+    stamps = pd.date_range("2025-01-01 00:00", periods=len(frame), freq="h")
+    return frame.assign(timestamp=stamps.strftime("%m/%d %H:%M"))
+
+
 @pytest.mark.parametrize("change, needles", [
     (_idf_text, ["model.idf", "line 1", "expected an IDF object"]),
+    (_boundary_stamps(_reversed), ["column 'timestamp', row 2", "'12/31 24:00'",
+                                   "expected '01/01 01:00'", "not the year's hours in order"]),
+    (_boundary_stamps(_hour_beginning), ["row 2", "'01/01 00:00'", "hour-ending"]),
     (_idf_binary, ["model.idf", "binary content"]),
     (_boundary_missing, ["model.boundary.file", "not found"]),
     (_boundary_text, ["row 43"]),
@@ -651,3 +673,13 @@ def test_name_patterns_never_select_the_objects_bpsflow_adds():
     assert matches_name("*", "Office Infiltration") and not matches_name("*", added)
     assert not matches_name("*infiltration*", added)
     assert matches_name(TOOL_OBJECT_PREFIX + "*", added) and matches_name(added.upper(), added)
+
+
+def test_iso_hour_ending_boundary_stamps_are_read():
+    from bpsflow.boundary import check_hour_order
+
+    stamps = pd.date_range("2025-01-01 01:00", periods=8760, freq="h")
+    check_hour_order(list(stamps.strftime("%Y-%m-%d %H:%M")), Path("b.csv"), "timestamp")
+    energyplus = [f"{s - pd.Timedelta(hours=1):%m/%d} 24:00" if s.hour == 0 else f"{s:%m/%d %H:%M}"
+                  for s in stamps]
+    check_hour_order(energyplus, Path("b.csv"), "timestamp")
