@@ -414,6 +414,9 @@ class Execution(_Strict):
     cluster: DaskCluster = Field(default_factory=DaskCluster)
     shared_filesystem: bool = True
     connect_timeout_s: float = Field(default=10.0, gt=0, le=3600)
+    #: Wall seconds one EnergyPlus run may take before it is stopped and its instance
+    #: recorded as failed (a hung engine never holds up the others); null: no limit.
+    run_timeout_s: float | None = Field(default=3600.0, gt=0)
 
     @field_validator("cluster", mode="before")
     @classmethod

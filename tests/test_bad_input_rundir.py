@@ -731,3 +731,30 @@ def test_a_blank_outputs_option_is_refused(finished, tmp_path):
     result = invoke("calibrate", config, "--measured", tmp_path / "run" / "truth" / "measured.csv",
                     "--outputs", "")
     assert_clean_error(result, "--outputs ''", "comma-separated output names")
+
+
+@pytest.mark.energyplus
+def test_a_hung_engine_is_stopped_and_the_others_still_run(tmp_path):
+    """An engine that never returns held run forever; execution.run_timeout_s stops it and
+    records the instance as failed with the key to change, the others being recorded too."""
+    from bpsflow.simulation.energyplus.engine import find_energyplus, idd_path
+
+    real = find_energyplus()
+    assert real is not None
+    (tmp_path / "Energy+.idd").symlink_to(idd_path(real))
+    binary = tmp_path / "energyplus"
+    binary.write_text('#!/bin/sh\ncase "$PWD" in\n  *000000*) exec sleep 600 ;;\n'
+                      '  *) echo "engine: failing on purpose"; exit 3 ;;\nesac\n')
+    binary.chmod(0o755)
+    raw = short_raw(samples=3)
+    raw["model"]["backend"] = "energyplus"
+    raw["model"]["energyplus"] = str(binary)
+    raw["execution"] = {"jobs": 2, "run_timeout_s": 3}
+    config = write_config(tmp_path, raw)
+    started = time.monotonic()
+    result = invoke("run", config, "--no-progress")
+    assert time.monotonic() - started < 120
+    assert result.exit_code != 0 and "Traceback" not in result.output
+    manifest = pd.read_parquet(tmp_path / "run" / "manifest.parquet").set_index("instance")
+    assert "stopped after 3 s (execution.run_timeout_s)" in manifest.loc[0, "error"]
+    assert manifest.loc[[1, 2], "error"].str.contains("exit code 3").all()

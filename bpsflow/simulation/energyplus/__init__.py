@@ -175,7 +175,8 @@ def run_instance(config: Config, instance: int | str, sample: dict[str, float], 
         record.write_seconds = time.perf_counter() - started
         frames = []
         for period, idf in files.idfs.items():
-            outcome = run_energyplus(binary, idf, files.weather, idf.parent)
+            outcome = run_energyplus(binary, idf, files.weather, idf.parent,
+                                     timeout_s=config.execution.run_timeout_s)
             record.simulate_seconds += outcome.seconds
             if not outcome.ok:
                 record.error = f"period {period}: {outcome.error}"

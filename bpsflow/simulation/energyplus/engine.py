@@ -107,7 +107,9 @@ def run_energyplus(binary: Path, idf: Path, weather: Path, out_dir: Path,
             # leaves no engine writing into its run directory
             preexec_fn=child_preexec())
     except subprocess.TimeoutExpired:
-        return RunOutcome(False, time.perf_counter() - started, f"timed out after {timeout_s} s")
+        return RunOutcome(False, time.perf_counter() - started,
+                          f"EnergyPlus was stopped after {timeout_s:g} s "
+                          f"(execution.run_timeout_s); the run did not finish in time")
     except OSError as exc:
         return RunOutcome(False, time.perf_counter() - started, f"could not start EnergyPlus: {exc}")
     seconds = time.perf_counter() - started
