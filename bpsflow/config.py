@@ -631,7 +631,7 @@ def test_dates(test: Test, year: int) -> tuple[date, date, date]:
 
 
 def window_config(config: Config, first: date, last: date) -> Config:
-    """``config`` simulating only the days ``first``..``last`` and the warm-up days before them.
+    """``config`` simulating only the days ``first``..``last`` and what leads into them.
 
     Each test whose evaluated days reach into the window keeps those days,
     led by its own ``warmup_days``, so that they start from the same kind of
@@ -639,33 +639,54 @@ def window_config(config: Config, first: date, last: date) -> Config:
     each period is cut to its remaining tests. A run then costs the window,
     not the whole period (the decision's test week, the held-out days).
 
+    When other days of the period lead into a kept test (a free-floating test
+    run after a heated one: its state at its start is what the heated days
+    left), the period is not cut: it runs from its start with the tests
+    before the window as they are, so the window's days see the same history
+    as in the whole run. Rows are matched by test and time
+    (:func:`bpsflow.calibration.design.resimulated`), so the extra days are
+    never scored.
+
     Raises
     ------
     BpsflowError
         When no test evaluates a day of the window.
     """
     year = config.model.year
-    tests: list[Test] = []
-    spans: dict[str, tuple[date, date]] = {}
+    kept: dict[str, list[tuple[Test, date, date]]] = {}
     for test in config.model.tests:
         _, evaluated, end = test_dates(test, year)
         kept_first, kept_last = max(evaluated, first), min(end, last)
-        if kept_first > kept_last:
-            continue
-        # never before the test's own first day: its warm-up days run in its own mode
-        start = kept_first - timedelta(days=test.warmup_days)
-        tests.append(test.model_copy(update={
-            "start": f"{start:%m-%d}", "days": (kept_last - start).days + 1,
-            "warmup_days": (kept_first - start).days}))
-        low, high = spans.get(test.period, (start, kept_last))
-        spans[test.period] = (min(low, start), max(high, kept_last))
-    if not tests:
+        if kept_first <= kept_last:
+            kept.setdefault(test.period, []).append((test, kept_first, kept_last))
+    if not kept:
         raise BpsflowError(f"days {first:%m-%d}..{last:%m-%d}: no test of model.tests evaluates "
                            "any of them", source=config.source)
+    tests: list[Test] = []
+    periods = []
+    for period in config.model.periods:
+        if period.name not in kept:
+            continue
+        period_first, _ = period_dates(period, year)
+        own_first = min(test_dates(test, year)[0] for test, _, _ in kept[period.name])
+        history = period_first < own_first   # days of other tests (or none) lead in
+        window_last = max(kept_last for _, _, kept_last in kept[period.name])
+        if history:
+            tests += [test for test in config.model.tests if test.period == period.name
+                      and test_dates(test, year)[0] < own_first]
+        window_first = period_first if history else None
+        for test, kept_first, kept_last in kept[period.name]:
+            test_first = test_dates(test, year)[0]
+            # never before the test's own first day: its warm-up days run in its own mode
+            start = test_first if history else kept_first - timedelta(days=test.warmup_days)
+            tests.append(test.model_copy(update={
+                "start": f"{start:%m-%d}", "days": (kept_last - start).days + 1,
+                "warmup_days": (kept_first - start).days}))
+            window_first = start if window_first is None else min(window_first, start)
+        periods.append(period.model_copy(update={"start": f"{window_first:%m-%d}",
+                                                 "end": f"{window_last:%m-%d}"}))
     trimmed = config.model_copy(deep=True)
-    trimmed.model.periods = [period.model_copy(update={"start": f"{spans[period.name][0]:%m-%d}",
-                                                       "end": f"{spans[period.name][1]:%m-%d}"})
-                             for period in config.model.periods if period.name in spans]
+    trimmed.model.periods = periods
     trimmed.model.tests = tests
     return trimmed
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
+
 import pytest
 from typer.testing import CliRunner
 
@@ -163,32 +165,54 @@ def test_extends_merges_sections_and_parameters_by_name(tmp_path):
 
 
 def test_a_window_keeps_the_tests_that_evaluate_its_days_each_after_its_warm_up():
-    """Two tests of one season reach into the window, the other season's do not: each kept test
-    evaluates only its days of the window, after its own warm-up days; its period is cut to it."""
+    """A window in a period's first test is cut to that test's days after its own warm-up;
+    the other tests are dropped and the period is cut to the window."""
     from datetime import date
 
     from bpsflow.config import period_dates, test_dates, window_config
 
     config = load_config(I600)
     year = config.model.year
-    first, last = date(year, 7, 15), date(year, 7, 21)
-    window = window_config(config, first, last)
-    originals = {t.name: t for t in config.model.tests}
-    kept = {t.name: t for t in window.model.tests}
-    assert set(kept) == {t.name for t in config.model.tests
-                         if test_dates(t, year)[1] <= last and test_dates(t, year)[2] >= first}
-    assert 2 <= len(kept) < len(originals)
-    for name, test in kept.items():
-        _, evaluated, end = test_dates(originals[name], year)
-        start, kept_evaluated, kept_end = test_dates(test, year)
-        assert (kept_evaluated, kept_end) == (max(evaluated, first), min(end, last))
-        assert test.warmup_days == originals[name].warmup_days
-        assert start >= test_dates(originals[name], year)[0]
-    assert [p.name for p in window.model.periods] == [kept[n].period for n in kept][:1]
-    assert period_dates(window.model.periods[0], year) == (
-        min(test_dates(t, year)[0] for t in kept.values()), last)
+    opening = config.model.tests[0]
+    _, evaluated, end = test_dates(opening, year)
+    window = window_config(config, end - timedelta(days=1), end)
+    assert [t.name for t in window.model.tests] == [opening.name]
+    test = window.model.tests[0]
+    start, kept_evaluated, kept_end = test_dates(test, year)
+    assert (kept_evaluated, kept_end) == (end - timedelta(days=1), end)
+    assert test.warmup_days == opening.warmup_days and start > test_dates(opening, year)[0]
+    assert period_dates(window.model.periods[0], year) == (start, end)
     with pytest.raises(BpsflowError, match="no test of model.tests evaluates"):
         window_config(config, date(year, 9, 1), date(year, 9, 7))
+
+
+def test_a_window_after_other_tests_of_its_period_keeps_their_history():
+    """A free-floating test that follows a conditioned one starts from the state that test
+    left: the window then runs its period from the start, the earlier tests as they are
+    (cut at the test's own warm-up, a heavy warehouse's free float came out 0.5 K colder)."""
+    from datetime import date
+
+    from bpsflow.config import period_dates, test_dates, window_config
+
+    config = load_config(I600)
+    year = config.model.year
+    first, last = date(year, 7, 20), date(year, 7, 21)
+    window = window_config(config, first, last)
+    summer = next(p for p in config.model.periods if p.name == "summer")
+    assert [p.name for p in window.model.periods] == ["summer"]
+    assert period_dates(window.model.periods[0], year) == (period_dates(summer, year)[0], last)
+    originals = {t.name: t for t in config.model.tests}
+    inside = [t for t in config.model.tests
+              if test_dates(t, year)[1] <= last and test_dates(t, year)[2] >= first]
+    before = [t for t in config.model.tests if t.period == "summer" and t not in inside]
+    assert {t.name for t in window.model.tests} == {t.name for t in inside + before}
+    for test in window.model.tests:
+        original = originals[test.name]
+        assert test_dates(test, year)[0] == test_dates(original, year)[0]  # its whole history
+        if original in before:
+            assert test == original
+        else:
+            assert test_dates(test, year)[2] == min(test_dates(original, year)[2], last)
 
 
 def test_an_overlay_problem_is_named_at_its_position_in_the_overlay(tmp_path):
