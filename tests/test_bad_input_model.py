@@ -683,3 +683,59 @@ def test_iso_hour_ending_boundary_stamps_are_read():
     energyplus = [f"{s - pd.Timedelta(hours=1):%m/%d} 24:00" if s.hour == 0 else f"{s:%m/%d %H:%M}"
                   for s in stamps]
     check_hour_order(energyplus, Path("b.csv"), "timestamp")
+
+
+def test_a_change_of_a_text_field_is_refused_alike_on_both_backends(tmp_path):
+    """The surrogate used to say it 'cannot represent this model' and to install EnergyPlus."""
+    for backend in ("surrogate", "energyplus"):
+        raw = surrogate_raw()
+        raw["model"]["backend"] = backend
+        raw["parameters"][0]["targets"][0]["field"] = "Roughness"
+        name = raw["parameters"][0]["name"]
+        (tmp_path / backend).mkdir()
+        result = invoke("check", write_config(tmp_path / backend, raw), "--no-run")
+        assert_clean_error(result, f"({name})", "'Roughness'", "not a number")
+        assert "cannot represent" not in result.output
+
+
+def test_a_boundary_surface_on_a_missing_schedule_is_named_on_the_surrogate(tmp_path):
+    raw = surrogate_raw()
+    surface = next(iter(raw["model"]["boundary"]["surfaces"]))
+    raw["model"]["boundary"]["surfaces"][surface]["schedule"] = "NoSuchSchedule"
+    result = invoke("check", write_config(tmp_path, raw), "--no-run")
+    assert_clean_error(result, f"model.boundary.surfaces.{surface}.schedule", "NoSuchSchedule")
+    assert "cannot represent" not in result.output
+
+
+@pytest.mark.energyplus
+def test_an_additive_change_reaches_a_number_written_in_a_schedule(tmp_path):
+    """Schedule:Compact holds its values as text ('0.5'): an additive parameter moves them."""
+    snippet = tmp_path / "extra.idf"
+    snippet.write_text("Schedule:Compact, ExtraFraction, , Through: 12/31, For: AllDays, "
+                       "Until: 24:00, 0.5;\n")
+    raw = short_raw(samples=2)
+    raw["model"]["idf_objects"] = [str(snippet)]
+    raw["parameters"].append({"name": "extra_fraction", "mode": "additive",
+                              "distribution": {"type": "uniform", "lower": 0.1, "upper": 0.2},
+                              "targets": [{"object": "Schedule:Compact", "name": "ExtraFraction",
+                                           "field": "Field 4"}]})
+    config = write_config(tmp_path, raw)
+    assert_ok(invoke("sample", config))
+    assert_ok(invoke("instances", config, "-i", "0"))
+    samples = pd.read_parquet(tmp_path / "run" / "samples.parquet").set_index("instance")
+    written = next((tmp_path / "run" / "inspect" / "000000").rglob("*.idf")).read_text()
+    value = 0.5 + float(samples.loc[0, "extra_fraction"])
+    assert "ExtraFraction" in written and f"{value:.10g}" in written
+
+
+def test_the_variables_energyplus_lists_are_read_in_both_layouts(tmp_path):
+    from bpsflow.simulation.energyplus import reported_names
+
+    (tmp_path / "eplusout.rdd").write_text(
+        "! Program Version,EnergyPlus, Version 25.2.0\n! Output:Variable Objects\n"
+        "Output:Variable,*,Zone Unit Heater Heating Rate,hourly; !- HVAC Average [W]\n")
+    (tmp_path / "eplusout.mdd").write_text(
+        "Program Version,EnergyPlus, Version 25.2.0\nVar Type (reported time step),Var Report "
+        "Type,Variable Name [Units]\nZone,Meter,Electricity:Facility [J]\n")
+    assert reported_names(tmp_path) == (["Zone Unit Heater Heating Rate"],
+                                        ["Electricity:Facility"])

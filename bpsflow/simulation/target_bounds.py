@@ -146,6 +146,22 @@ def check_target_fields(config: Config) -> list[TargetedField]:
                     f"object named '{target.name}' in {describe_model(config.model)} (objects "
                     f"of that type: {names[:12] or 'none'}{' ...' if len(names) > 12 else ''})"
                     f"{missing_semicolon_hint(config.model)}", source=config.source)
+    for entry in fields:
+        if entry.nominal is None and any(p.mode != "absolute" for p in entry.parameters):
+            # an absolute parameter first gives it a number; a change of text cannot apply
+            first = entry.parameters[0]
+            if first.mode == "absolute":
+                continue
+            text = entry.obj.fields[entry.position].strip() \
+                if entry.position < len(entry.obj.fields) else ""
+            label = f"field '{entry.limits.field}'"
+            index = config.parameters.index(first)
+            article = "an" if first.mode == "additive" else "a"
+            raise BpsflowError(
+                f"parameters[{index}] ({first.name}): {entry.obj.where} {label} holds "
+                f"'{text}', not a number (blank: EnergyPlus's default, autosize, text), so "
+                f"{article} {first.mode} change cannot apply; expected a field with a number in "
+                f"the model, or mode absolute", source=config.source)
     return fields
 
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from bpsflow.errors import BpsflowError
 from bpsflow.simulation.idf import FIELDS, model_objects
+from bpsflow.simulation.model_inputs import check_boundary_schedules
 from bpsflow.simulation.target_bounds import check_target_fields
 
 if TYPE_CHECKING:
@@ -51,8 +52,10 @@ def unsupported_features(config: Config) -> list[str]:
         One phrase per feature (empty when the surrogate can run the model).
     """
     idf = model_objects(config.model)
-    # A target EnergyPlus has no field for is the config's mistake, whatever the backend.
+    # A target EnergyPlus has no field for is the config's mistake, whatever the backend;
+    # so is a boundary surface on a schedule the model lacks.
     check_target_fields(config)
+    check_boundary_schedules(config)
     lacking: list[str] = []
     zones = [o.name for o in idf.of_type("ZONE")]
     if len(zones) != 1:

@@ -53,10 +53,33 @@ def reported_names(directory: Path) -> tuple[list[str], list[str]]:
     found: list[list[str]] = []
     for name in ("eplusout.rdd", "eplusout.mdd"):
         path = directory / name
-        lines = path.read_text(errors="replace").splitlines()[2:] if path.is_file() else []
-        found.append(sorted({line.split(",", 2)[-1].rsplit(" [", 1)[0].strip()
-                             for line in lines if line.count(",") >= 2}))
+        lines = path.read_text(errors="replace").splitlines() if path.is_file() else []
+        found.append(sorted({n for n in map(_reported_name, lines) if n}))
     return found[0], found[1]
+
+
+def _reported_name(line: str) -> str:
+    """The variable or meter a ``.rdd``/``.mdd`` line names, "" for other lines.
+
+    Two layouts: ``Zone,Average,Zone Mean Air Temperature [C]`` and, as
+    EnergyPlus 25.2 writes them, IDF objects such as ``Output:Variable,*,Zone
+    Mean Air Temperature,hourly; !- Zone Average [C]`` or ``Output:Meter,
+    Electricity:Facility,hourly; !- [J]``.
+    """
+    text = line.split("!", 1)[0].strip()
+    if not text:
+        return ""
+    fields = [f.strip().rstrip(";").strip() for f in text.split(",")]
+    kind = fields[0].upper()
+    if kind.startswith(("PROGRAM VERSION", "VAR TYPE")):   # the regular layout's header
+        return ""
+    if kind == "OUTPUT:VARIABLE":
+        return fields[2] if len(fields) > 2 else ""
+    if kind.startswith("OUTPUT:METER"):
+        return fields[1] if len(fields) > 1 else ""
+    if len(fields) >= 3:
+        return fields[2].rsplit(" [", 1)[0].strip()
+    return ""
 
 
 def _missing_output_hint(spec, raw: pd.DataFrame, window: np.ndarray,

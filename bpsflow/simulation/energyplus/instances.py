@@ -14,6 +14,8 @@ the nominal values back, which keeps writing to a few milliseconds.
 
 from __future__ import annotations
 
+import math
+
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -219,13 +221,29 @@ def _resolve_idf_target(target: IdfTarget, idf, parameter: Parameter, where: str
                 f"{where}.field: {target.object} '{object_name(obj) or k}' has no field "
                 f"'{target.field}' (its fields: {', '.join(obj.fieldnames[1:])})", source=source)
         value = obj[match[0]]
-        if parameter.mode in ("relative", "additive") and not isinstance(value, (int, float)):
+        if parameter.mode in ("relative", "additive") and field_number(value) is None:
             raise BpsflowError(
                 f"{where}: field '{match[0]}' of {target.object} '{object_name(obj) or k}' "
-                f"holds '{value}', not a number, so a {parameter.mode} change cannot apply",
-                source=source)
+                f"holds '{value}', not a number, so {_article(parameter.mode)} "
+                f"{parameter.mode} change cannot apply", source=source)
         refs.append(FieldRef(object_type, k, object_name(obj), match[0]))
     return refs
+
+
+def field_number(value) -> float | None:
+    """A field's value as a number: numbers, and numbers written in a text field (a
+    Schedule:Compact value such as '15.6'); None for other text."""
+    if isinstance(value, (int, float)):
+        return float(value)
+    try:
+        number = float(str(value).strip())
+    except ValueError:
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1].lower() in "aeiou" else "a"
 
 
 def object_name(obj) -> str:
@@ -366,7 +384,7 @@ def build_templates(config: Config, idd: Path) -> dict[str, Template]:
             key = (ref.object_type, ref.index, ref.field)
             if key not in slots:
                 value = obj[ref.field]
-                slots[key] = FieldSlot(float(value) if isinstance(value, (int, float)) else None, [])
+                slots[key] = FieldSlot(field_number(value), [])
             slots[key].parameters.append(name)
     ordered = list(slots.items())
     for k, ((object_type, index, field_name), _) in enumerate(ordered):
