@@ -15,7 +15,6 @@ the nominal values back, which keeps writing to a few milliseconds.
 from __future__ import annotations
 
 import math
-
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
