@@ -374,6 +374,8 @@ def test_an_empty_snippet_list_over_a_base_with_snippets_is_named():
     ({"holdout_days": 40}, "calibration.holdout_days"),
     ({"scenarios": [{"name": "A", "outputs": ["foo"], "resolution": "daily"}]},
      "calibration.scenarios (A).outputs[0]"),
+    # no held-out design runs: the emulator error term would be dropped without a word
+    ({"emulator": {"test_fraction": 0}}, "emulator.test_fraction: 0 holds out no design runs"),
 ])
 def test_check_refuses_what_calibrate_would(tmp_path, calibration, needle):
     raw = _surrogate_raw()

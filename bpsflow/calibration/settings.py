@@ -339,6 +339,12 @@ class CalibrationSettings(_Strict):
             if repeated:
                 # each observation would count twice and the posterior be too narrow
                 raise ValueError(f"{key}: {', '.join(repeated)} listed more than once")
+        if self.emulator.test_fraction == 0 and self.bayes.emulator_error != "none":
+            # the emulator's error term is measured on its held-out runs: none, no term
+            raise ValueError(f"emulator.test_fraction: 0 holds out no design runs, and "
+                             f"bayes.emulator_error: {self.bayes.emulator_error} measures the "
+                             f"emulator's error on them; expected a fraction above 0 (e.g. "
+                             f"0.1), or bayes.emulator_error: none")
         names = [s.name for s in self.scenarios]
         if len(set(names)) != len(names):
             repeated = sorted({n for n in names if names.count(n) > 1})
