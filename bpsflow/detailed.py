@@ -1200,6 +1200,15 @@ def read_detailed(path: Path, surfaces: Iterable[str] | None = None) -> pd.DataF
             if meta.is_file() else []
     required = [c for c in detailed_columns(list(surfaces)) if not c.endswith(OPTIONAL_SUFFIXES)]
     frame = _read_table(path, ["timestamp"] + required, "detailed measurements")
+    if frame.empty:
+        raise BpsflowError("the file has a header but no rows; expected hourly sensor "
+                           "readings", source=path)
+    empty = [c for c in required if frame[c].isna().all()]
+    if empty:
+        raise BpsflowError(f"column '{empty[0]}' holds no reading in any row"
+                           + (f" (nor do {len(empty) - 1} other sensor column(s))"
+                              if len(empty) > 1 else "")
+                           + "; expected readings of every sensor the file lists", source=path)
     stamps = pd.to_datetime(frame["timestamp"], errors="coerce")
     if stamps.isna().any():
         row = int(stamps.isna().to_numpy().argmax())

@@ -549,3 +549,20 @@ def test_refine_again_keeps_the_earlier_refinement(tmp_path):
     earlier = list((out / "previous").glob("*"))
     assert len(earlier) == 1 and (earlier[0] / "refine.json").is_file()
     assert (earlier[0] / "refined.yaml").is_file() and (out / "refined.yaml").is_file()
+
+
+def test_detailed_readings_without_rows_or_with_an_empty_sensor_are_refused(tmp_path):
+    """Both used to refine to 'sensor_std_c: nan' or blank boundary cells, exit 0."""
+    from bpsflow.detailed import detailed_columns, read_detailed
+
+    columns = detailed_columns(["east"])
+    path = tmp_path / "detailed.csv"
+    path.write_text(",".join(["timestamp", *columns]) + "\n")
+    with pytest.raises(BpsflowError, match="a header but no rows"):
+        read_detailed(path, ["east"])
+    frame = pd.DataFrame(1.0, index=pd.date_range("2025-12-05 01:00", periods=3, freq="h",
+                                                   name="timestamp"), columns=columns)
+    frame["boundary_east_s1_c"] = np.nan
+    frame.to_csv(path)
+    with pytest.raises(BpsflowError, match="'boundary_east_s1_c' holds no reading"):
+        read_detailed(path, ["east"])

@@ -102,10 +102,10 @@ def write_config(refinement: Refinement, path: Path) -> Path:
                 entry["sensor_std_c"] = spec.sensor_std_c
             surfaces[name] = entry
         raw["model"] = {"boundary": {"file": BOUNDARY_FILE, "surfaces": surfaces}}
-    raw["parameters"] = []
+    # no refined parameter: no 'parameters' key (an empty list over a base is refused)
     for refined in refinement.parameters:
         parameter = refined.baseline
-        raw["parameters"].append({
+        raw.setdefault("parameters", []).append({
             "name": parameter.name, "group": parameter.group, "mode": parameter.mode,
             "description": f"refined from detailed measurements ({refined.provenance['equation']})"
                            + (f"; baseline: {parameter.description}" if parameter.description
