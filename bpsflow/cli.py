@@ -213,11 +213,19 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
     check_model_inputs(cfg)  # refuse bad model inputs before anything is moved
     drawn = _draw(cfg)  # every option is checked and the design drawn before anything moves
     rd = _lock(cfg)
-    changes = design_changes(cfg, rd)
+    overrides = {key: value for key, value in (("design.samples", samples),
+                                               ("design.seed", seed)) if value is not None}
+    changes = design_changes(cfg, rd, frozenset(overrides))
     ran = [name for name in _RUN_FILES if (rd / name).exists()]
     if changes == [] and not force:
+        from bpsflow.design_record import recorded_overrides
+
+        earlier = {k: v for k, v in recorded_overrides(rd).items() if k not in overrides}
         console.print(f"the design in {rd} is the config's already: kept samples.parquet"
-                      + (" and the instances run from it" if ran else ""))
+                      + (" and the instances run from it" if ran else "")
+                      + (" (drawn with " + ", ".join(f"{k} {v}" for k, v in earlier.items())
+                         + " from the command line; --force draws the config's own)"
+                         if earlier else ""))
         return
     if ran and not force:
         what = "; ".join(changes[:3]) if changes else "a design with no record"
@@ -226,7 +234,7 @@ def sample(config: Path = ConfigArg, run_dir: Path | None = RunDirOption,
                            f"to move them to {rd / 'previous'}/<timestamp> and draw the "
                            f"new design")
     moved = move_aside(rd, _DESIGN_FILES) if ran else None
-    path = _write_drawn(cfg, drawn)
+    path = _write_drawn(cfg, drawn, overrides)
     console.print(f"wrote {path} ({cfg.design.method}, {len(cfg.parameters)} parameters)")
     if moved is not None:
         console.print(f"the previous design and its results are in {moved}")
@@ -245,8 +253,10 @@ def _draw(cfg):
     return design, sequences
 
 
-def _write_drawn(cfg, drawn) -> Path:
-    """Write a drawn design, its boundary sequences, its record and the resolved config."""
+def _write_drawn(cfg, drawn, overrides: dict | None = None) -> Path:
+    """Write a drawn design, its boundary sequences, its record and the resolved config.
+
+    ``overrides``: the design keys the command line set (recorded in ``design.json``)."""
     from bpsflow.boundary import SEQUENCES_FILE, write_sequences
     from bpsflow.design_record import write_design_record
     from bpsflow.sampling import write_design
@@ -258,7 +268,7 @@ def _write_drawn(cfg, drawn) -> Path:
         write_sequences(sequences, run_dir)
     else:
         (run_dir / SEQUENCES_FILE).unlink(missing_ok=True)
-    write_design_record(cfg, run_dir)
+    write_design_record(cfg, run_dir, overrides)
     _write_resolved(cfg)
     return path
 

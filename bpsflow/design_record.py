@@ -96,19 +96,40 @@ def design_inputs(config: Config) -> dict[str, Any]:
     return jsonable(inputs)
 
 
-def write_design_record(config: Config, run_dir: Path) -> Path:
-    """Write ``design.json`` (the config's :func:`design_inputs`) into ``run_dir``."""
-    return write_json(Path(run_dir) / DESIGN_FILE, {"inputs": design_inputs(config)})
+def write_design_record(config: Config, run_dir: Path,
+                        overrides: dict[str, Any] | None = None) -> Path:
+    """Write ``design.json`` (the config's :func:`design_inputs`) into ``run_dir``.
+
+    ``overrides`` are the design keys the command line set (``sample --samples
+    8``: ``{"design.samples": 8}``); later commands take them as the run
+    directory's own, so the samples drawn with them stay usable.
+    """
+    record: dict[str, Any] = {"inputs": design_inputs(config)}
+    if overrides:
+        record["overrides"] = jsonable(overrides)
+    return write_json(Path(run_dir) / DESIGN_FILE, record)
 
 
 def read_design_record(run_dir: Path) -> dict[str, Any] | None:
     """The recorded design inputs, or None when ``design.json`` is missing or unreadable."""
-    path = Path(run_dir) / DESIGN_FILE
-    try:
-        inputs = json.loads(path.read_text())["inputs"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+    record = _read_record(run_dir)
+    inputs = record.get("inputs") if record is not None else None
     return inputs if isinstance(inputs, dict) else None
+
+
+def recorded_overrides(run_dir: Path) -> dict[str, Any]:
+    """The design keys the command line set when the run directory's samples were drawn."""
+    record = _read_record(run_dir)
+    overrides = record.get("overrides") if record is not None else None
+    return overrides if isinstance(overrides, dict) else {}
+
+
+def _read_record(run_dir: Path) -> dict[str, Any] | None:
+    try:
+        record = json.loads((Path(run_dir) / DESIGN_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
 
 
 def changed_keys(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:
@@ -144,8 +165,13 @@ def _short(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-def design_changes(config: Config, run_dir: Path) -> list[str] | None:
+def design_changes(config: Config, run_dir: Path,
+                   given: frozenset[str] = frozenset()) -> list[str] | None:
     """How the config's design differs from the one ``run_dir``'s samples were drawn with.
+
+    A design key the command line set when the samples were drawn
+    (:func:`recorded_overrides`) stands for the config's value, unless it is
+    in ``given`` (set on this command line too: ``config`` already holds it).
 
     Returns
     -------
@@ -163,7 +189,10 @@ def design_changes(config: Config, run_dir: Path) -> list[str] | None:
         return None
     recorded = read_design_record(run_dir)
     if recorded is not None:
-        return changed_keys(recorded, design_inputs(config))
+        # what the command line set when sampling stands for the config's value
+        kept = {key: value for key, value in recorded_overrides(run_dir).items()
+                if key not in given}
+        return changed_keys(recorded, {**design_inputs(config), **kept})
     if _same_as_redrawn(config, samples_path):
         write_design_record(config, run_dir)
         return []

@@ -758,3 +758,16 @@ def test_a_hung_engine_is_stopped_and_the_others_still_run(tmp_path):
     manifest = pd.read_parquet(tmp_path / "run" / "manifest.parquet").set_index("instance")
     assert "stopped after 3 s (execution.run_timeout_s)" in manifest.loc[0, "error"]
     assert manifest.loc[[1, 2], "error"].str.contains("exit code 3").all()
+
+
+def test_a_design_drawn_with_command_line_options_is_the_run_dirs_own(tmp_path):
+    """'sample --samples 3' then 'run' was refused (design.samples: 3 -> 4, and run has no
+    --samples): the options are recorded and stand for the config's value later."""
+    config = write_config(tmp_path, surrogate_raw(samples=4))
+    assert_ok(invoke("sample", config, "--samples", "3"))
+    assert_ok(invoke("run", config, "--no-progress"))
+    assert pd.read_parquet(tmp_path / "run" / "results.parquet")["instance"].nunique() == 3
+    kept = invoke("sample", config)
+    assert_ok(kept)
+    assert "design.samples 3" in " ".join(kept.output.split())
+    assert_clean_error(invoke("sample", config, "--samples", "5"), "design.samples: 3 -> 5")
