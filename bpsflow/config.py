@@ -475,6 +475,10 @@ class Config(_Strict):
         for name in outputs:
             if not NAME_PATTERN.fullmatch(name):
                 raise ValueError(f"output name {name!r}: {NAME_RULE}")
+            if name.strip().lower() == "timestamp":
+                # the measured file's time column has that name: the output's column never could
+                raise ValueError(f"output name {name!r} is the measured file's time column; "
+                                 f"expected another name (e.g. {name}_value)")
         return outputs
 
     @model_validator(mode="after")
@@ -759,6 +763,8 @@ class _UniqueKeyLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: 
 def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
     seen: set = set()
     for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue   # '<<: *base' merges a mapping: its keys may be given again here
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             raise yaml.constructor.ConstructorError(

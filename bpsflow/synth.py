@@ -223,12 +223,24 @@ def truth_notes(config: Config, truth: Truth) -> list[str]:
     Allowed (a truth beyond the prior tests how a calibration fails), but a
     prior that excludes the truth cannot cover it, so it is said.
     """
-    from bpsflow.distributions import Constant, Sampler
+    from bpsflow.distributions import Constant, Discrete, Sampler
 
     notes = []
     for name, value in truth.values.items():
         distribution = config.parameter(name).distribution
-        if isinstance(distribution, (Constant, Sampler)):
+        if isinstance(distribution, Sampler):
+            continue
+        if isinstance(distribution, Constant):
+            if value != distribution.value:
+                notes.append(f"values.{name}: {value:g} replaces the constant "
+                             f"{distribution.value:g} of the config; every instance of a design "
+                             f"keeps {distribution.value:g}, so no calibration can move it")
+            continue
+        if isinstance(distribution, Discrete):
+            if not np.isclose(distribution.values, value).any():
+                notes.append(f"values.{name}: {value:g} is none of its distribution's values "
+                             f"({', '.join(f'{v:g}' for v in distribution.values)}); a design "
+                             f"draws only those, so no calibration can reach it")
             continue
         low, high = (float(v) for v in distribution.ppf(np.array([0.0, 1.0])))
         if np.isfinite(low) and value < low or np.isfinite(high) and value > high:

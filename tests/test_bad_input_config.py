@@ -406,3 +406,35 @@ def test_an_output_scale_of_zero_is_refused(tmp_path):
     raw["outputs"][name]["scale"] = 0
     assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
                        f"outputs.{name}", "scale: 0")
+
+
+def test_yaml_merge_keys_are_read_and_repeated_keys_still_refused():
+    from bpsflow.config import parse_yaml
+
+    assert parse_yaml("base: &b {a: 1, b: 2}\nx:\n  <<: *b\n  b: 3\n")["x"] == {"a": 1, "b": 3}
+    with pytest.raises(yaml.YAMLError, match="appears twice"):
+        parse_yaml("x: {a: 1, a: 2}\n")
+
+
+def test_an_output_named_timestamp_is_refused(tmp_path):
+    raw = _surrogate_raw()
+    raw["outputs"]["timestamp"] = raw["outputs"].pop("heating_power_w")
+    for test in raw["model"]["tests"]:
+        test["outputs"] = ["timestamp" if o == "heating_power_w" else o for o in test["outputs"]]
+    assert_clean_error(invoke("check", write_config(tmp_path, raw), "--no-run"),
+                       "output name 'timestamp'", "time column")
+
+
+def test_truth_values_a_design_cannot_draw_are_said(tmp_path):
+    from bpsflow.config import load_config
+    from bpsflow.synth import Truth, truth_notes
+
+    raw = _surrogate_raw()
+    raw["parameters"][0]["distribution"] = {"type": "constant", "value": 1.0}
+    raw["parameters"][1]["distribution"] = {"type": "discrete", "values": [0.9, 1.0, 1.1]}
+    config = load_config(write_config(tmp_path, raw))
+    first, second = raw["parameters"][0]["name"], raw["parameters"][1]["name"]
+    notes = truth_notes(config, Truth(values={first: 1.2, second: 1.05}))
+    assert any(first in n and "replaces the constant 1" in n for n in notes)
+    assert any(second in n and "none of its distribution's values" in n for n in notes)
+    assert truth_notes(config, Truth(values={first: 1.0, second: 1.1})) == []

@@ -49,8 +49,8 @@ class SurrogateBackend:
             idf_fields=sum(isinstance(t, IdfTarget) for t in targets),
             weather_targets=sum(isinstance(t, WeatherTarget) for t in targets),
             boundary_targets=sum(isinstance(t, BoundaryTarget) for t in targets),
-            notes=[f"the surrogate has no physics for {len(ignored)} targeted field(s): "
-                   + "; ".join(ignored)] if ignored else [])
+            notes=([f"the surrogate has no physics for {len(ignored)} targeted field(s): "
+                    + "; ".join(ignored)] if ignored else []) + _version_notes(config))
 
     def check_samples(self, config: Config, samples: pd.DataFrame) -> None:
         """Refuse samples that set a field outside the IDD's bounds (before anything runs)."""
@@ -79,3 +79,13 @@ class SurrogateBackend:
 
 
 BACKEND = SurrogateBackend()
+
+
+def _version_notes(config: Config) -> list[str]:
+    """The IDF's EnergyPlus version when it is not 25.2: the surrogate reads any, the engine
+    would not, so a later run on EnergyPlus meets it."""
+    from bpsflow.simulation.energyplus import version_mismatch
+
+    mismatch = version_mismatch(config.model)
+    return [f"the surrogate reads the model as it is, but on EnergyPlus: {mismatch}"] \
+        if mismatch else []
