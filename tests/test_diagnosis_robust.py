@@ -361,3 +361,23 @@ def test_a_screen_start_is_fitted_again_only_when_its_own_run_beats_the_first_fi
     assert len(batches) == 1 and list(batches[0]["level"]) == [1.0, 2.0, 3.0]
     assert (batches[0]["other"] == 7.0).all()
     assert "round1_screen_check" in context.timings
+
+
+def test_a_fitted_input_at_the_end_of_its_range_is_noted():
+    """A window U fitted at its lower bound stood in for a missing gain, without a word."""
+    from types import SimpleNamespace
+
+    from bpsflow.config import IdfTarget, Parameter
+    from bpsflow.diagnosis.workflow import _fitted_input_bound_notes
+    from bpsflow.distributions import Uniform
+
+    def parameter(name, group="inputs"):
+        return Parameter(name=name, group=group, mode="absolute",
+                         distribution=Uniform(type="uniform", lower=3.0, upper=6.0),
+                         targets=[IdfTarget(object="Material", name="M", field="Conductivity")])
+
+    fit = SimpleNamespace(parameters=[parameter("window_u"), parameter("plug"),
+                                      parameter("gain", "extension")],
+                          values=np.array([3.0, 4.5, 6.0]))
+    notes = _fitted_input_bound_notes(fit)
+    assert len(notes) == 1 and "window_u = 3" in notes[0] and "lower end" in notes[0]

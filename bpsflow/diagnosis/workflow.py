@@ -992,6 +992,30 @@ def where_text(entry: dict) -> str:
     return text
 
 
+def _fitted_input_bound_notes(fit) -> list[str]:
+    """A note per fitted model input (not an extension) that ended at an end of its range.
+
+    An input pressed against its bound is standing in for something else (what
+    the model lacks, or a bound set too tight), so the causes and sizes fitted
+    beside it may be biased; calibrate warns the same way.
+    """
+    notes = []
+    for parameter, value in zip(fit.parameters, fit.values):
+        if parameter.group == "extension":
+            continue
+        low, high = parameter_range(parameter)
+        if not (np.isfinite(low) and np.isfinite(high) and high > low):
+            continue
+        side = ("lower" if value <= low + 0.01 * (high - low) else
+                "upper" if value >= high - 0.01 * (high - low) else None)
+        if side is not None:
+            notes.append(f"the fitted input {parameter.name} = {float(value):.4g} sits at the "
+                         f"{side} end of its range ({low:.4g}..{high:.4g}): it may stand in for "
+                         f"what the model lacks, so the causes and sizes fitted beside it may "
+                         f"be biased (widen its range if the bound is not physical)")
+    return notes
+
+
 def _bound_notes(result: Diagnosis) -> list[str]:
     """A note per accepted extension size fitted at the top of its range.
 
@@ -2579,6 +2603,9 @@ def _finish(context: _Context, result: Diagnosis) -> None:
                               result.timestamps[held], result.output)
     if note and note not in result.notes:
         result.notes.append(note)
+    for note in _fitted_input_bound_notes(result.final.fit):
+        if note not in result.notes:
+            result.notes.append(note)
     cause = {"driver": None, "parameter": None, "extension": None, **(result.cause or {})}
     result.cause = cause
     if result.verdict == "none":
