@@ -53,3 +53,18 @@ def test_disabled_progress_says_nothing():
         task = progress.add_task("runs", total=4)
         progress.update(task, completed=4)
     assert buffer.getvalue() == ""
+
+
+def test_a_step_that_does_not_advance_still_says_it_is_running():
+    """A diagnosis's base fit (minutes of simulations) left the log at '0/5, 0 s'."""
+    import time
+
+    console, buffer = _console()
+    with LoggedProgress(TextColumn("{task.description}"), console=console, every=0.2,
+                        name="diagnose") as progress:
+        task = progress.add_task("fits", total=5)
+        time.sleep(0.9)
+        progress.advance(task)
+    lines = buffer.getvalue().splitlines()
+    assert sum("still running" in line for line in lines) >= 2
+    assert lines[-1].startswith("diagnose fits: 1/5") and "still running" not in lines[-1]
