@@ -283,11 +283,14 @@ def _profile(steps: list[tuple[int, float]]) -> np.ndarray:
 
 def pair(config: Config, results: pd.DataFrame, measured: pd.DataFrame, outputs: list[str],
          resolution: str, holdout_days: int, idle_fraction: float = 0.0,
-         measured_source: Path | str | None = None) -> Paired:
+         measured_source: Path | str | None = None,
+         heldout_window: tuple[pd.Timestamp, pd.Timestamp] | None = None) -> Paired:
     """Pair measured and simulated values of ``outputs`` at ``resolution``.
 
     Every test that reports an output contributes its evaluated days; the
-    last ``holdout_days`` days (over all tests) are the held-out split.
+    last ``holdout_days`` days (over all tests) are the held-out split, or
+    the days of ``heldout_window`` (first, last; another pairing's held-out
+    days, so that every output is judged on the days a calibration held out).
     Heating (cooling) rate rows are kept only while that system is scheduled
     on and the measured value is above ``idle_fraction`` of its mean.
 
@@ -323,8 +326,12 @@ def pair(config: Config, results: pd.DataFrame, measured: pd.DataFrame, outputs:
     simulated_all = np.concatenate(simulated, axis=0)
     day = row_days(rows, resolution)
     last_day = day.max()
-    first_heldout = last_day - pd.Timedelta(days=holdout_days - 1)
-    rows["split"] = np.where(day >= first_heldout, "heldout", "calibration")
+    if heldout_window is None:
+        first_heldout = last_day - pd.Timedelta(days=holdout_days - 1)
+        held = day >= first_heldout
+    else:
+        held = (day >= heldout_window[0]) & (day <= heldout_window[1])
+    rows["split"] = np.where(held, "heldout", "calibration")
     if not (rows["split"] == "calibration").any():
         raise BpsflowError(f"calibration.holdout_days: holding out {holdout_days} days leaves no "
                            f"calibration days (evaluated days end {last_day:%m-%d})",

@@ -625,9 +625,14 @@ def _physical_check(run: CalibrationRun, config: Config, settings: CalibrationSe
     samples = design_module.samples_frame(config, run.parameters, unit)
     console.print(f"[{run.scenario.name}] physical check: {len(samples)} run(s) "
                   f"({len(samples) - 1} posterior draws + the deterministic optimum)")
+    # every output on the days this calibration held out (an output of other tests, e.g. a
+    # free float after the heated days, is scored where its days meet them, else not at all)
+    held_days = design_module.row_days(run.paired.rows.iloc[run.heldout_rows],
+                                       run.paired.resolution)
     priors = {resolution: design_module.pair(
         config, design.results, measured, outputs, resolution, settings.holdout_days,
-        settings.idle_fraction, source).split("heldout") for resolution in ("daily", "hourly")}
+        settings.idle_fraction, source, heldout_window=(held_days.min(), held_days.max())
+    ).split("heldout") for resolution in ("daily", "hourly")}
     # only the held-out days are scored: the re-runs simulate them after their tests'
     # warm-up days, not the whole period
     days = design_module.row_days(priors["daily"].rows, "daily")
