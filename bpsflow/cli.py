@@ -345,6 +345,10 @@ def check(config: Path = ConfigArg,
             calibration_workflow.check_holdout(cfg, settings, scenario)
     report.notes.extend(inert_targets(cfg))
     report.notes.extend(truncation_notes(cfg.parameters))
+    used = {test.period for test in cfg.model.tests}
+    report.notes.extend(f"model.periods: '{p.name}' is the period of no test; every instance "
+                        f"simulates it, and nothing reads its results" for p in cfg.model.periods
+                        if p.name not in used)
     if report.controlled_zones:
         from bpsflow.simulation.idf import model_objects
         from bpsflow.simulation.setpoints import sizing_note

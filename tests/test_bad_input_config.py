@@ -438,3 +438,11 @@ def test_truth_values_a_design_cannot_draw_are_said(tmp_path):
     assert any(first in n and "replaces the constant 1" in n for n in notes)
     assert any(second in n and "none of its distribution's values" in n for n in notes)
     assert truth_notes(config, Truth(values={first: 1.0, second: 1.1})) == []
+
+
+def test_a_period_no_test_uses_is_noted_by_check(tmp_path):
+    raw = _surrogate_raw()
+    raw["model"]["periods"].append({"name": "spare", "start": "03-01", "end": "03-07"})
+    result = invoke("check", write_config(tmp_path, raw), "--no-run")
+    assert result.exit_code == 0
+    assert "'spare' is the period of no test" in " ".join(result.output.split())
