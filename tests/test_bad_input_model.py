@@ -739,3 +739,15 @@ def test_the_variables_energyplus_lists_are_read_in_both_layouts(tmp_path):
         "Type,Variable Name [Units]\nZone,Meter,Electricity:Facility [J]\n")
     assert reported_names(tmp_path) == (["Zone Unit Heater Heating Rate"],
                                         ["Electricity:Facility"])
+
+
+def test_ventilation_limits_the_surrogate_cannot_honour_are_refused(tmp_path):
+    """Ventilation only above 40 °C outdoors ran all the time on the surrogate (+193 W)."""
+    snippet = tmp_path / "vent.idf"
+    snippet.write_text("ZoneVentilation:DesignFlowRate, WarmVent, Cell, AlwaysOn, Flow/Zone, "
+                       "0.01, , , , Natural, 0, 1, 1, 0, 0, 0, -100, , 100, , -100, , 40;\n")
+    raw = surrogate_raw()
+    raw["model"]["idf_objects"] = [str(snippet)]
+    result = invoke("check", write_config(tmp_path, raw), "--no-run")
+    assert_clean_error(result, "ZoneVentilation:DesignFlowRate 'WarmVent'",
+                       "'Minimum Outdoor Temperature' is '40'")

@@ -489,6 +489,8 @@ def _air_exchanges(values: FieldValues, zone_name: str) -> tuple[np.ndarray, lis
             _check_zone(obj, "Zone or ZoneList or Space or SpaceList Name", zone_name)
             _choice(obj, "Design Flow Rate Calculation Method", "Flow/Zone", ("Flow/Zone",))
             basis = "OUTDOOR"
+            if object_type == "ZONEVENTILATION:DESIGNFLOWRATE":
+                _refuse_ventilation_limits(obj)
             if object_type == "ZONEINFILTRATION:DESIGNFLOWRATE":
                 basis = _choice(obj, "Density Basis", "Outdoor", ("Outdoor", "Standard"))
             get = lambda f, d, kind=object_type, name=obj.name: values.get(kind, name, f, d)  # noqa: E731
@@ -507,6 +509,30 @@ def _air_exchanges(values: FieldValues, zone_name: str) -> tuple[np.ndarray, lis
                 temperature=b, velocity=c, velocity_squared=d, schedule=schedule,
                 density_basis=basis.lower()))
     return constant_flow, exchanges
+
+
+#: ZoneVentilation:DesignFlowRate's on/off limits and the values that leave them open.
+_VENTILATION_LIMITS = {"Minimum Indoor Temperature": -100.0, "Maximum Indoor Temperature": 100.0,
+                       "Delta Temperature": -100.0, "Minimum Outdoor Temperature": -100.0,
+                       "Maximum Outdoor Temperature": 100.0, "Maximum Wind Speed": 40.0}
+
+
+def _refuse_ventilation_limits(obj: IdfObject) -> None:
+    """The surrogate ventilates whenever the schedule says: a temperature or wind limit that
+    would shut the flow off (ventilation only above 40 °C outdoors) would be ignored."""
+    for name, open_value in _VENTILATION_LIMITS.items():
+        text = obj.get(name).strip()
+        schedule = obj.get(f"{name} Schedule Name").strip() if name != "Maximum Wind Speed" \
+            else ""
+        try:
+            limited = bool(text) and float(text) != open_value
+        except ValueError:
+            limited = True
+        if limited or schedule:
+            raise BpsflowError(f"{_where(obj)}: field '{name}{' Schedule Name' if schedule else ''}'"
+                               f" is '{schedule or text}'; the surrogate ventilates whenever the "
+                               f"schedule is on and has no temperature or wind limits (leave "
+                               f"them blank, or use EnergyPlus)")
 
 
 def _internal_gains(values: FieldValues, zone_name: str) -> list[InternalGain]:
