@@ -761,7 +761,15 @@ def refine(config: Path = ConfigArg,
     rd = _lock(cfg)
     out = prepare_run_dir((out or rd / "refine").resolve(), where="--out")
     if refined_config is not None:
+        from bpsflow.refine.report import REFINED_HEADER
+
         refuse_config_chain(cfg, refined_config, "--refined-config")
+        if refined_config.is_file():
+            with open(refined_config, encoding="utf-8", errors="replace") as handle:
+                if not handle.readline().startswith(REFINED_HEADER):
+                    raise BpsflowError(f"--refined-config: {refined_config} exists and is not "
+                                       f"a refined config bpsflow wrote; expected a new file "
+                                       f"(or an earlier refined config, which is replaced)")
         check_writable_file(refined_config, "--refined-config")
     refinement = run_refine(cfg, detailed)
     paths = write_refinement(refinement, out, refined_config)

@@ -349,6 +349,8 @@ def test_true_or_false_for_a_number_is_refused_naming_the_key(tmp_path, where):
     ({"extension_zones": {"internal_gain_schedule": "Lab"}},
      "diagnosis.extension_zones.internal_gain_schedule: 'Lab' is not a Zone"),
     ({"output": "lab_heating_w"}, "diagnosis.output: 'lab_heating_w' is not an output"),
+    ({"extensions": ["infiltration"], "extension_zones": {"thermal_mass": "Cell"}},
+     "extension_zones: thermal_mass is not in extensions"),
     ({"parameters": ["no_such_input"]}, "diagnosis.parameters[0]: 'no_such_input'")])
 def test_check_refuses_what_diagnose_would_refuse(tmp_path, section, expected):
     """check said 'config is valid' and diagnose then refused the same config."""
@@ -376,6 +378,7 @@ def test_an_empty_snippet_list_over_a_base_with_snippets_is_named():
      "calibration.scenarios (A).outputs[0]"),
     # no held-out design runs: the emulator error term would be dropped without a word
     ({"emulator": {"test_fraction": 0}}, "emulator.test_fraction: 0 holds out no design runs"),
+    ({"variable_inputs": []}, "variable_inputs: the list is empty"),
 ])
 def test_check_refuses_what_calibrate_would(tmp_path, calibration, needle):
     raw = _surrogate_raw()

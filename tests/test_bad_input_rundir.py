@@ -640,6 +640,12 @@ def test_refine_never_writes_its_config_over_the_one_given(tmp_path):
                     "--refined-config", config)
     assert_clean_error(result, "--refined-config", "is the config given")
     assert config.read_text() == before
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("a: 1\n")
+    result = invoke("refine", config, "--detailed", tmp_path / "nowhere.csv",
+                    "--refined-config", mine)
+    assert_clean_error(result, "--refined-config", "not a refined config bpsflow wrote")
+    assert mine.read_text() == "a: 1\n"
 
 
 def test_finished_instances_of_another_model_are_never_resumed_or_scored(tmp_path):

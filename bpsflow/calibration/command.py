@@ -133,7 +133,9 @@ def calibrate(config: Config, measured_path: Path, *, method: str = "bayes",
     # the design's ensemble bounds powers and energies (a x1000 unit mistake)
     read_measured(measured_path, config, required=required, reference=design.results,
                   allow_implausible=allow_implausible)
-    truth = workflow.read_truth(truth_path, design.parameters) if truth_path else None
+    truth = workflow.read_truth(truth_path, design.parameters,
+                                frozenset(p.name for p in config.parameters)) \
+        if truth_path else None
     outcome = Outcome()
     provenance = {"measured": str(Path(measured_path).resolve()),
                   "config": {"source": str(config.source),

@@ -86,7 +86,7 @@ def calibration_parameters(config: Config, settings: CalibrationSettings,
             raise BpsflowError(
                 f"parameters ({p.name}).distribution: a fitted parameter ({key}) needs a continuous "
                 f"distribution (uniform, normal, beta, lognormal, triangular), got "
-                f"'{p.distribution.type}'; make it constant or leave it out of "
+                f"'{p.distribution.type}'; give it one of those, or leave it out of "
                 f"{key}", source=config.source)
     return chosen
 

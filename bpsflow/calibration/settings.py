@@ -353,6 +353,11 @@ class CalibrationSettings(_Strict):
         for where, inputs in [("variable_inputs", self.variable_inputs)] + [
                 (f"scenarios ({s.name}).variable_inputs", s.variable_inputs)
                 for s in self.scenarios]:
+            if inputs == []:
+                # an empty list read as 'the default inputs': refused, not ignored
+                raise ValueError(f"{where}: the list is empty; name at least one of "
+                                 f"{', '.join(VARIABLE_INPUTS)} (or leave the key out for the "
+                                 f"default)")
             for name in inputs or []:
                 if name not in VARIABLE_INPUTS:
                     raise ValueError(f"{where}: unknown variable input '{name}', expected some "

@@ -729,8 +729,14 @@ def _report_screened_error(run: CalibrationRun, factor: np.ndarray, rest: np.nda
                   highlight=False)
 
 
-def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
-    """True θ values from ``bpsflow synth``'s ``truth.json`` or a truth YAML (``values:``)."""
+def read_truth(path: Path, parameters: list[Parameter],
+               not_fitted: frozenset[str] = frozenset()) -> dict[str, float]:
+    """True θ values from ``bpsflow synth``'s ``truth.json`` or a truth YAML (``values:``).
+
+    ``parameters`` are the ones compared; ``not_fitted`` names the config's
+    other parameters (constants, inputs left out of the calibration), which
+    a truth may hold and are said as such rather than as unknown.
+    """
     import yaml
 
     path = Path(path)
@@ -745,7 +751,13 @@ def read_truth(path: Path, parameters: list[Parameter]) -> dict[str, float]:
     if not isinstance(values, dict):
         raise BpsflowError("expected a mapping 'values: {parameter: value}'", source=path)
     known = {p.name for p in parameters}
-    unknown = sorted(str(name) for name in values if name not in known)
+    skipped = sorted(str(name) for name in values if name in not_fitted and name not in known)
+    unknown = sorted(str(name) for name in values if name not in known and name not in not_fitted)
+    if skipped:
+        console.print(f"{path.name}: values of {len(skipped)} parameter(s) the calibration does "
+                      f"not fit (constants, or left out of calibration.parameters) are not "
+                      f"compared: {', '.join(skipped[:8])}{' ...' if len(skipped) > 8 else ''}",
+                      highlight=False)
     if unknown and len(unknown) == len(values):
         raise BpsflowError(f"values: none of {', '.join(unknown)} is a parameter of the config "
                            f"(expected some of {sorted(known)})", source=path)

@@ -149,6 +149,16 @@ class DiagnosisSettings(StrictModel):
     seed: int = 0
 
     @model_validator(mode="after")
+    def _zones_of_listed_extensions(self) -> DiagnosisSettings:
+        off = sorted(str(name) for name in self.extension_zones if name not in self.extensions)
+        if off:
+            # a zone for an extension that never runs would be ignored without a word
+            raise ValueError(f"extension_zones: {', '.join(off)} is not in extensions "
+                             f"({', '.join(map(str, self.extensions))}); expected zones for "
+                             f"listed extensions only")
+        return self
+
+    @model_validator(mode="after")
     def _distinct(self) -> DiagnosisSettings:
         for key in ("extensions", "parameters", "suspects"):
             listed = getattr(self, key) or []

@@ -29,6 +29,9 @@ BOUNDARY_FILE = "refined_boundary_temperatures.csv"
 DISTRIBUTIONS_FIGURE = "refined_distributions.png"
 CONVECTION_FIGURE = "convection_regression.png"
 
+#: The first words of every refined config bpsflow writes (an earlier one may be replaced).
+REFINED_HEADER = "# Refined by 'bpsflow refine'"
+
 
 def write_refinement(refinement: Refinement, out_dir: Path,
                      config_path: Path | None = None) -> dict[str, Path]:
@@ -113,7 +116,7 @@ def write_config(refinement: Refinement, path: Path) -> Path:
             "distribution": refined.distribution,
             "targets": [t.model_dump(mode="json") for t in parameter.targets],
             "provenance": _plain(refined.provenance)})
-    header = (f"# Refined by 'bpsflow refine' from {refinement.detailed.detailed_path}\n"
+    header = (f"{REFINED_HEADER} from {refinement.detailed.detailed_path}\n"
               f"# (seed §3.4.3-3.5). Only refined inputs are listed; the rest come from the\n"
               f"# baseline config named in 'extends'. See refine.json for all estimates.\n")
     write_text_atomic(path, header + yaml.safe_dump(raw, sort_keys=False, allow_unicode=True,
