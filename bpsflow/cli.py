@@ -545,6 +545,28 @@ def validate(config: Path = ConfigArg,
                            f"directory of another ensemble (e.g. the baseline's) whose "
                            f"predictions are treated as invalid")
     invalid_results = read_results(invalid.resolve()) if invalid else None
+    invalid_notes: list[str] = []
+    if invalid is not None:
+        from bpsflow.design_record import invalid_ensemble_problems
+        from bpsflow.simulation.rundir import read_manifest
+
+        problems, invalid_notes = invalid_ensemble_problems(cfg, invalid.resolve())
+        if problems:
+            raise BpsflowError(f"--invalid: {invalid} cannot serve as the known-invalid "
+                               f"ensemble ({'; '.join(problems[:3])}"
+                               + (f"; and {len(problems) - 3} more" if len(problems) > 3
+                                  else "")
+                               + "); expected the run directory of an ensemble run "
+                               "with the same tests, days and output definitions (e.g. the "
+                               "baseline's, from a config that extends this one)")
+        manifest = read_manifest(invalid.resolve())
+        failed = manifest.loc[manifest["status"] != "ok", "instance"].tolist() \
+            if "status" in manifest else []
+        if failed:
+            invalid_notes.append(f"{len(failed)} instance(s) of the invalid ensemble failed "
+                                 f"and are left out of its scores")
+        for note in invalid_notes:
+            console.print(f"[yellow]--invalid: {escape(note)}[/yellow]", highlight=False)
     if invalid_results is not None:
         # another model's ensemble by design, but it must report this config's tests
         have = set(zip(invalid_results["test"], invalid_results["output"]))
@@ -562,10 +584,10 @@ def validate(config: Path = ConfigArg,
     validations = run_validation(cfg, results, observed, cfg.validation.q,
                                  cfg.validation.estimator, invalid_results, measured)
     note_measured(validations, data)
-    if gap:
+    for extra in ([gap] if gap else []) + [f"--invalid: {n}" for n in invalid_notes]:
         # the files say it too: a partial ensemble's thresholds are not the designed ones
         for v in validations:
-            v.row["notes"] = "; ".join(n for n in (v.row["notes"], gap) if n)
+            v.row["notes"] = "; ".join(n for n in (v.row["notes"], extra) if n)
     paths = write_outputs(validations, rd, cfg.validation.q, measured=data.record())
     plot_bands(cfg, results, rd / "figures", observed)
     table = Table(title=escape(f"{cfg.name}: validation (q = {cfg.validation.q:g}, type I risk "

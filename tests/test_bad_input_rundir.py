@@ -777,3 +777,30 @@ def test_a_design_drawn_with_command_line_options_is_the_run_dirs_own(tmp_path):
     assert_ok(kept)
     assert "design.samples 3" in " ".join(kept.output.split())
     assert_clean_error(invoke("sample", config, "--samples", "5"), "design.samples: 3 -> 5")
+
+
+def test_an_invalid_ensemble_of_other_definitions_or_designs_is_refused(finished, tmp_path):
+    """An invalid ensemble with outputs scaled 0.001, or a Morris folder, was scored as
+    invalid predictions (type II risk 0, reduced risk 0.9) without a word."""
+    import json
+
+    config = copy_run(finished, tmp_path)
+    run = tmp_path / "run"
+    measured = run / "truth" / "measured.csv"
+    scaled = tmp_path / "scaled"
+    shutil.copytree(run, scaled)
+    record = json.loads((scaled / "simulation.json").read_text())
+    output = next(k for k in record["inputs"] if k.startswith("outputs."))
+    record["inputs"][output]["scale"] = 0.001
+    (scaled / "simulation.json").write_text(json.dumps(record))
+    before = snapshot(run)
+    assert_clean_error(invoke("validate", config, "--measured", measured, "--invalid", scaled),
+                       "--invalid", f"{output}.scale: 0.001 -> 1")
+    morris = tmp_path / "morris"
+    shutil.copytree(run, morris)
+    (morris / "morris_design.json").write_text("{}")
+    assert_clean_error(invoke("validate", config, "--measured", measured, "--invalid", morris),
+                       "--invalid", "its design is morris")
+    assert_unchanged(before, run)
+    same = shutil.copytree(run, tmp_path / "same")   # the same definitions: accepted
+    assert_ok(invoke("validate", config, "--measured", measured, "--invalid", same))
