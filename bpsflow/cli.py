@@ -714,6 +714,14 @@ def sensitivity(
     err_console.print(f"Morris design: {mcfg.design.trajectories} trajectories × ({k} + 1) = "
                       f"{len(samples)} runs, {mcfg.design.levels} levels"
                       + (f"; {fixed} constant parameter(s) not stepped" if fixed else ""))
+    # a discrete input whose rare value no level reaches is never stepped: its mu* of 0
+    # says nothing of its effect
+    unmoved = [p.name for p in varied if p.name in samples
+               and samples[p.name].nunique(dropna=False) < 2]
+    if unmoved:
+        err_console.print(f"[yellow]the Morris design never changes {', '.join(unmoved)} (its "
+                          f"distribution puts the design's levels on one value): its mu* of 0 "
+                          f"does not measure its effect[/yellow]", highlight=False)
     summary = run_ensemble(mcfg, samples, chosen, jobs=jobs, show_progress=not no_progress)
     if summary.ok == 0:
         raise BpsflowError(all_failed_message(summary, md, "Morris runs"))

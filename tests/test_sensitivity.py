@@ -242,7 +242,11 @@ def test_morris_design_is_redrawn_when_its_settings_change(case):
 
 @pytest.mark.slow
 def test_sensitivity_cli_on_the_surrogate(tmp_path):
-    config = write_config(tmp_path, short_raw())
+    raw = short_raw()
+    # a rare second value no Morris level reaches: the input is never stepped, and said so
+    rare = next(p for p in raw["parameters"] if p["name"] == "thermostat_offset")
+    rare["distribution"] = {"type": "discrete", "values": [0.0, 0.5], "weights": [0.99, 0.01]}
+    config = write_config(tmp_path, raw)
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / "samples.parquet").write_bytes(b"LHS design")   # must be left alone
@@ -268,6 +272,7 @@ def test_sensitivity_cli_on_the_surrogate(tmp_path):
     gradient = by.loc[("H-FF:zone_air_temperature_c", "stratification_gradient")]
     assert gradient["mu_star"] > 0 and abs(gradient["mu"]) == pytest.approx(gradient["mu_star"])
     assert "H-ST:heating_power_w" in result.output and "rank" in result.output
+    assert "never changes thermostat_offset" in " ".join(result.output.split())
     reduced = load_config(tmp_path / "case_screened.yaml")
     assert reduced.run_dir == tmp_path / "run_screened"
     fixed = [p for p in reduced.parameters if isinstance(p.distribution, Constant)]
