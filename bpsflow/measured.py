@@ -771,6 +771,11 @@ def _aggregate(frame: pd.DataFrame, config: Config, path: Path,
     aggregation: dict[str, str] = {}
     rules: dict[tuple[pd.Timedelta, str], list[str]] = {}
     dropped: dict[str, list[pd.Timestamp]] = {}
+    # the outputs the tests use are checked first: an error names a column that matters
+    used = {output for test in config.model.tests for output in test.outputs}
+    for column in sorted(frame.columns, key=lambda c: c not in used):
+        if step != output_resolution(config, column):
+            _check_step(step, output_resolution(config, column), column, path)
     for column in frame.columns:
         target = output_resolution(config, column)
         if step == target:
