@@ -381,3 +381,27 @@ def test_a_fitted_input_at_the_end_of_its_range_is_noted():
                           values=np.array([3.0, 4.5, 6.0]))
     notes = _fitted_input_bound_notes(fit)
     assert len(notes) == 1 and "window_u = 3" in notes[0] and "lower end" in notes[0]
+
+
+def test_accepted_extensions_report_the_final_models_sizes():
+    """A night gain split over two rounds reported 95 W / radiant 0 (its round's fit) while
+    the final model, whose gain the verdict quotes, held 149 W / 0.52."""
+    from types import SimpleNamespace
+
+    from bpsflow.diagnosis.workflow import _final_sizes
+
+    first = {"accepted": True, "fitted": {"scheduled_gain_w": 95.0},
+             "parameter_names": {"scheduled_gain_w": "scheduled_gain_w_v1"}}
+    a, b = "infiltration_a_m3s", "infiltration_b_m3s_per_k"
+    law = {"accepted": True, "fitted": {a: 0.01, b: 0.0},
+           "parameter_names": {a: f"{a}_v2", b: f"{b}_v2"},
+           "law": "flow = 0.01 m³/s", "terms": [a]}
+    rejected = {"accepted": False, "fitted": {"x": 1.0}, "parameter_names": {"x": "x"}}
+    final = {"scheduled_gain_w_v1": 149.4, f"{a}_v2": 0.02, f"{b}_v2": 0.0, "x": 5.0}
+    result = SimpleNamespace(extensions=[first, law, rejected],
+                             final=SimpleNamespace(fit=SimpleNamespace(named=final)))
+    _final_sizes(result)
+    assert first["fitted"] == {"scheduled_gain_w": 149.4}
+    assert first["fitted_when_accepted"] == {"scheduled_gain_w": 95.0}
+    assert law["law"] == "flow = 0.02 m³/s"
+    assert rejected["fitted"] == {"x": 1.0} and "fitted_when_accepted" not in rejected

@@ -97,6 +97,7 @@ def diagnosis_record(d: Diagnosis) -> dict:
         "parameter_check": d.parameter_check,
         "parameter_fit": d.parameter_fit,
         "rounds": d.rounds,
+        "round_limit_reached": d.round_limit_reached,
         "seconds": d.seconds,
         "seconds_per_step": d.timings,
         "notes": d.notes,
@@ -347,7 +348,9 @@ def markdown(d: Diagnosis, record: dict, figures: dict[str, Path]) -> str:
                                   for t in e["term_selection"][:4])
                 lines += ["", f"Law terms chosen by BIC (best first): {terms}."]
         if d.unexplained:
-            lines += ["", "Structure no candidate explains: " + ", ".join(d.unexplained)
+            lines += ["", ("Structure left when the rounds ran out (diagnosis.max_rounds): "
+                           if d.round_limit_reached else
+                           "Structure no candidate explains: ") + ", ".join(d.unexplained)
                       + " (see the residual heatmap and the autocorrelation plot)."]
     elif untried_reason(d) is not None:
         lines += ["", "## Candidate extensions", "", f"None tried: {untried_reason(d)}."]

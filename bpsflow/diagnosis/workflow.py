@@ -152,6 +152,9 @@ class Diagnosis:
     gain: dict = field(default_factory=dict)
     parameter_fit: dict | None = None
     unexplained: list[str] = field(default_factory=list)   # drivers no candidate explains
+    #: the rounds ran out (diagnosis.max_rounds) with structure left: ``unexplained`` then
+    #: lists drivers no round got to, not drivers no candidate explains
+    round_limit_reached: bool = False
     final_scores: dict = field(default_factory=dict)
     seconds: float = 0.0
     backend: str = "surrogate"
@@ -727,6 +730,13 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
         left = [t.name for t in context.test(residual[d.calibration]) if t.significant]
         if left and result.verdict == "model_form":
             result.unexplained = left
+            result.round_limit_reached = True
+            result.notes.append(
+                f"the diagnosis stopped at its round limit (diagnosis.max_rounds: "
+                f"{settings.max_rounds}) with structure left ({', '.join(left)}); each round "
+                f"accepts one cause, so another may remain: raise diagnosis.max_rounds to look "
+                f"for it")
+            announce(result.notes[-1])
     _prune(context, result, announce)
     for entry in result.extensions:
         entry.setdefault("accepted", False)
@@ -990,6 +1000,29 @@ def where_text(entry: dict) -> str:
     if isinstance(block, dict) and "day_type" in block:
         text += f" on {block['day_type']} {block['start_hour']}–{block['end_hour']} h"
     return text
+
+
+def _final_sizes(result: Diagnosis) -> None:
+    """Give each accepted extension the sizes of the final model, not of its round.
+
+    Later rounds refit every accepted extension beside the new one (a second
+    gain block takes over part of the first's hours), so the sizes an
+    extension had when it was accepted are not the model the verdict's gain
+    is measured with. Those stay as ``fitted_when_accepted``.
+    """
+    final = result.final.fit.named
+    for entry in result.extensions:
+        if not entry.get("accepted") or "fitted_when_accepted" in entry:
+            continue
+        names = entry.get("parameter_names", {})
+        if not names or not all(names.get(r) in final for r in entry.get("fitted", {})):
+            continue
+        entry["fitted_when_accepted"] = dict(entry["fitted"])
+        entry["fitted"] = {reported: float(final[names[reported]])
+                           for reported in entry["fitted"]}
+        if entry.get("law") and entry.get("terms"):
+            entry["law"] = law_text({t: entry["fitted"][t] for t in entry["terms"]
+                                     if t in entry["fitted"]})
 
 
 def _fitted_input_bound_notes(fit) -> list[str]:
@@ -1577,7 +1610,10 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                  "files": str(extended.model.idf_objects[-1].parent), **detail}
         # the runner-up: the next cause fitted, or a screened-out one if its screen is lower
         others = [(float(bics[j]), chosen[j][0].cause, "fitted") for j in order if j != index]
-        others += [(value, cause, "screened") for value, cause in screened_out]
+        # a screen is a trial-size fit on other terms: one scoring below this cause's full fit
+        # is no like-for-like rival (it read as 'very strong' evidence the wrong way round)
+        others += [(value, cause, "screened") for value, cause in screened_out
+                   if value >= float(bics[index])]
         # hourly residuals are autocorrelated: a BIC difference counted as if every hour
         # were independent overstates the evidence between two causes
         fraction = comparison.effective_fraction(d.y[cal] - fit.prediction[cal])
@@ -2205,6 +2241,16 @@ def _cross_validate(context: _Context, union: Config, union_sample: dict, curren
         return {}
     folds = crossval.day_blocks(d.timestamps, ~d.calibration, settings.days_per_fold)
     last = int(folds.max())
+    if last < 2:
+        # one calibration block beside the held-out days: the acceptance has little to go on
+        days = len(np.unique(np.asarray((d.timestamps[d.calibration]
+                                         - pd.Timedelta(hours=1)).normalize())))
+        note = (f"diagnosis.days_per_fold: {settings.days_per_fold} days per fold over {days} "
+                f"calibration days make {last} calibration fold(s) beside the held-out days; "
+                f"the cross-validated acceptance rests on {last + 1} folds (shorter folds give "
+                f"it more)")
+        if note not in context.notes:
+            context.notes.append(note)
     refit = settings.cv_refit or ("simulated" if context.vectorised
                                   else "linearised")
 
@@ -2603,6 +2649,7 @@ def _finish(context: _Context, result: Diagnosis) -> None:
                               result.timestamps[held], result.output)
     if note and note not in result.notes:
         result.notes.append(note)
+    _final_sizes(result)
     for note in _fitted_input_bound_notes(result.final.fit):
         if note not in result.notes:
             result.notes.append(note)
@@ -2645,6 +2692,10 @@ def _finish(context: _Context, result: Diagnosis) -> None:
                             f"drivers, the residual heatmap and the lag plot).")
     if result.unexplained and result.verdict == "model_form":
         cause["unexplained"] = list(result.unexplained)
-        if cause.get("extension"):
+        if cause.get("extension") and result.round_limit_reached:
+            cause["summary"] += (f" Structure remains ({', '.join(result.unexplained)}) after "
+                                 f"the last round allowed (diagnosis.max_rounds): another cause "
+                                 f"may remain.")
+        elif cause.get("extension"):
             cause["summary"] += (" Structure remains that no candidate explains: "
                                  + ", ".join(result.unexplained) + ".")
