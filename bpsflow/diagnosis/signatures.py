@@ -181,12 +181,12 @@ def clip_to_physical(config: Config, sample: dict[str, float], candidates: list[
     in ``notes``.
     """
     out = []
+    every_clip: list[str] = []
     for c in candidates:
         name = c.parameter.name
         lower, upper, clipped = physical_range(config, {**sample, name: c.nominal}, name,
                                                c.lower, c.upper)
-        if notes is not None:
-            notes.extend(f"parameter {note}" for note in clipped)
+        every_clip += clipped
         if not upper > lower:
             if notes is not None:
                 notes.append(f"parameter {name} left out of the signatures: no change of it "
@@ -194,6 +194,13 @@ def clip_to_physical(config: Config, sample: dict[str, float], candidates: list[
             continue
         out.append(Candidate(c.parameter, c.nominal, lower, upper,
                              half_width=(c.upper - c.lower) / 2))
+    if notes is not None and len(every_clip) > 2:
+        # one line for many (a model's glazing and absorptances): the other notes stay visible
+        notes.append(f"parameter signatures: {len(every_clip)} perturbations clipped to the "
+                     f"limits EnergyPlus accepts: "
+                     + "; ".join(clip.split(", the limit of what")[0] for clip in every_clip))
+    elif notes is not None:
+        notes.extend(f"parameter {clip}" for clip in every_clip)
     return out
 
 
