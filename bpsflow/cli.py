@@ -547,8 +547,8 @@ def validate(config: Path = ConfigArg,
     invalid_results = read_results(invalid.resolve()) if invalid else None
     invalid_notes: list[str] = []
     if invalid is not None:
-        from bpsflow.design_record import invalid_ensemble_problems
         from bpsflow.simulation.rundir import read_manifest
+        from bpsflow.validation import invalid_ensemble_problems
 
         problems, invalid_notes = invalid_ensemble_problems(cfg, invalid.resolve())
         if problems:

@@ -112,19 +112,20 @@ def write_design_record(config: Config, run_dir: Path,
 
 def read_design_record(run_dir: Path) -> dict[str, Any] | None:
     """The recorded design inputs, or None when ``design.json`` is missing or unreadable."""
-    record = _read_record(run_dir)
+    record = read_design_file(run_dir)
     inputs = record.get("inputs") if record is not None else None
     return inputs if isinstance(inputs, dict) else None
 
 
 def recorded_overrides(run_dir: Path) -> dict[str, Any]:
     """The design keys the command line set when the run directory's samples were drawn."""
-    record = _read_record(run_dir)
+    record = read_design_file(run_dir)
     overrides = record.get("overrides") if record is not None else None
     return overrides if isinstance(overrides, dict) else {}
 
 
-def _read_record(run_dir: Path) -> dict[str, Any] | None:
+def read_design_file(run_dir: Path) -> dict[str, Any] | None:
+    """``design.json`` as written (``inputs`` and any ``overrides``), or None when unreadable."""
     try:
         record = json.loads((Path(run_dir) / DESIGN_FILE).read_text())
     except (OSError, ValueError):
@@ -361,48 +362,3 @@ def require_same_simulation(config: Config, run_dir: Path, command: str,
         f"old results are moved to {Path(run_dir) / 'previous'}/<timestamp>), or use another "
         f"--run-dir", source=config.source)
 
-
-def invalid_ensemble_problems(config: Config, invalid_dir: Path) -> tuple[list[str], list[str]]:
-    """Why ``invalid_dir`` cannot serve as ``config``'s known-invalid ensemble, and notes.
-
-    The invalid ensemble is another model's (other distributions, perhaps
-    other boundary data) by design, but it must simulate the same tests over
-    the same days with the same output definitions, and be a random
-    ensemble: a Morris design steps one input at a time from a few points.
-
-    Returns
-    -------
-    (problems, notes)
-        ``problems``: key changes (``model.tests[0].start: 11-08 -> 11-09``)
-        or the design's kind, each a reason to refuse; ``notes``: what the
-        record cannot confirm.
-    """
-    from bpsflow.calibration.design import CONFIG_FINGERPRINT_FILE
-    from bpsflow.sensitivity import SETTINGS_FILE as MORRIS_FILE
-
-    notes: list[str] = []
-    problems: list[str] = []
-    design = _read_record(invalid_dir)
-    method = (design or {}).get("inputs", {}).get("design.method") if design else None
-    if (Path(invalid_dir) / MORRIS_FILE).is_file():
-        method = "morris"
-    if method is not None and method != "lhs":
-        problems.append(f"its design is {method} (one input stepped at a time), not a random "
-                        f"ensemble")
-    elif (Path(invalid_dir) / CONFIG_FINGERPRINT_FILE).is_file():
-        problems.append("it holds a calibration's runs (a space-filling design over the "
-                        "calibrated inputs), not a random ensemble of a model's uncertainty")
-    elif design is None:
-        notes.append(f"{invalid_dir} has no {DESIGN_FILE}: its samples cannot be confirmed "
-                     f"to be a random ensemble")
-    record = read_simulation_record(invalid_dir)
-    if record is None:
-        notes.append(f"{invalid_dir} has no {SIMULATION_FILE}: its tests and outputs cannot be "
-                     f"compared with this config's")
-        return problems, notes
-    current = simulation_inputs(config)
-    keys = ["model.year", "model.tests", "model.timesteps_per_hour"] + \
-        [k for k in current if k.startswith("outputs.")]
-    problems += changed_keys({k: record["inputs"].get(k, "-") for k in keys},
-                             {k: current.get(k, "-") for k in keys})
-    return problems, notes

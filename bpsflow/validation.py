@@ -168,3 +168,57 @@ def plot_scores(validations: list[TestValidation], path: Path) -> Path:
         ax.set_visible(False)
     save_figure(fig, path, dpi=110)
     return path
+
+
+def invalid_ensemble_problems(config: Config, invalid_dir: Path) -> tuple[list[str], list[str]]:
+    """Why ``invalid_dir`` cannot serve as ``config``'s known-invalid ensemble, and notes.
+
+    The invalid ensemble is another model's (other distributions, perhaps
+    other boundary data) by design, but it must simulate the same tests over
+    the same days with the same output definitions, and be a random
+    ensemble: a Morris design steps one input at a time from a few points.
+
+    Returns
+    -------
+    (problems, notes)
+        ``problems``: key changes (``model.tests[0].start: 11-08 -> 11-09``)
+        or the design's kind, each a reason to refuse; ``notes``: what the
+        record cannot confirm.
+    """
+    from bpsflow.calibration.design import CONFIG_FINGERPRINT_FILE
+    from bpsflow.design_record import (
+        DESIGN_FILE,
+        SIMULATION_FILE,
+        changed_keys,
+        read_design_file,
+        read_simulation_record,
+        simulation_inputs,
+    )
+    from bpsflow.sensitivity import SETTINGS_FILE as MORRIS_FILE
+
+    notes: list[str] = []
+    problems: list[str] = []
+    design = read_design_file(invalid_dir)
+    method = (design or {}).get("inputs", {}).get("design.method") if design else None
+    if (Path(invalid_dir) / MORRIS_FILE).is_file():
+        method = "morris"
+    if method is not None and method != "lhs":
+        problems.append(f"its design is {method} (one input stepped at a time), not a random "
+                        f"ensemble")
+    elif (Path(invalid_dir) / CONFIG_FINGERPRINT_FILE).is_file():
+        problems.append("it holds a calibration's runs (a space-filling design over the "
+                        "calibrated inputs), not a random ensemble of a model's uncertainty")
+    elif design is None:
+        notes.append(f"{invalid_dir} has no {DESIGN_FILE}: its samples cannot be confirmed "
+                     f"to be a random ensemble")
+    record = read_simulation_record(invalid_dir)
+    if record is None:
+        notes.append(f"{invalid_dir} has no {SIMULATION_FILE}: its tests and outputs cannot be "
+                     f"compared with this config's")
+        return problems, notes
+    current = simulation_inputs(config)
+    keys = ["model.year", "model.tests", "model.timesteps_per_hour"] + \
+        [k for k in current if k.startswith("outputs.")]
+    problems += changed_keys({k: record["inputs"].get(k, "-") for k in keys},
+                             {k: current.get(k, "-") for k in keys})
+    return problems, notes

@@ -761,6 +761,7 @@ def test_a_hung_engine_is_stopped_and_the_others_still_run(tmp_path):
     result = invoke("run", config, "--no-progress")
     assert time.monotonic() - started < 120
     assert result.exit_code != 0 and "Traceback" not in result.output
+    assert (tmp_path / "run" / "manifest.parquet").is_file(), result.output
     manifest = pd.read_parquet(tmp_path / "run" / "manifest.parquet").set_index("instance")
     assert "stopped after 3 s (execution.run_timeout_s)" in manifest.loc[0, "error"]
     assert manifest.loc[[1, 2], "error"].str.contains("exit code 3").all()

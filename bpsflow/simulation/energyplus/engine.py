@@ -59,7 +59,8 @@ def idd_path(binary: Path) -> Path:
     idd = Path(binary).resolve().parent / "Energy+.idd"
     if not idd.is_file():
         raise BpsflowError(f"no Energy+.idd beside the EnergyPlus binary {binary}")
-    return idd
+    # a linked IDD is the file it links to: eppy holds one IDD per process, by path
+    return idd.resolve()
 
 
 @dataclass
