@@ -547,7 +547,6 @@ def validate(config: Path = ConfigArg,
     invalid_results = read_results(invalid.resolve()) if invalid else None
     invalid_notes: list[str] = []
     if invalid is not None:
-        from bpsflow.simulation.rundir import read_manifest
         from bpsflow.validation import invalid_ensemble_problems
 
         problems, invalid_notes = invalid_ensemble_problems(cfg, invalid.resolve())
@@ -559,12 +558,6 @@ def validate(config: Path = ConfigArg,
                                + "); expected the run directory of an ensemble run "
                                "with the same tests, days and output definitions (e.g. the "
                                "baseline's, from a config that extends this one)")
-        manifest = read_manifest(invalid.resolve())
-        failed = manifest.loc[manifest["status"] != "ok", "instance"].tolist() \
-            if "status" in manifest else []
-        if failed:
-            invalid_notes.append(f"{len(failed)} instance(s) of the invalid ensemble failed "
-                                 f"and are left out of its scores")
         for note in invalid_notes:
             console.print(f"[yellow]--invalid: {escape(note)}[/yellow]", highlight=False)
     if invalid_results is not None:
@@ -791,15 +784,12 @@ def refine(config: Path = ConfigArg,
     rd = _lock(cfg)
     out = prepare_run_dir((out or rd / "refine").resolve(), where="--out")
     if refined_config is not None:
+        from bpsflow.files import refuse_foreign_file
         from bpsflow.refine.report import REFINED_HEADER
 
         refuse_config_chain(cfg, refined_config, "--refined-config")
-        if refined_config.is_file():
-            with open(refined_config, encoding="utf-8", errors="replace") as handle:
-                if not handle.readline().startswith(REFINED_HEADER):
-                    raise BpsflowError(f"--refined-config: {refined_config} exists and is not "
-                                       f"a refined config bpsflow wrote; expected a new file "
-                                       f"(or an earlier refined config, which is replaced)")
+        refuse_foreign_file(refined_config, REFINED_HEADER, "--refined-config",
+                            "a refined config")
         check_writable_file(refined_config, "--refined-config")
     refinement = run_refine(cfg, detailed)
     paths = write_refinement(refinement, out, refined_config)

@@ -110,13 +110,6 @@ def write_design_record(config: Config, run_dir: Path,
     return write_json(Path(run_dir) / DESIGN_FILE, record)
 
 
-def read_design_record(run_dir: Path) -> dict[str, Any] | None:
-    """The recorded design inputs, or None when ``design.json`` is missing or unreadable."""
-    record = read_design_file(run_dir)
-    inputs = record.get("inputs") if record is not None else None
-    return inputs if isinstance(inputs, dict) else None
-
-
 def recorded_overrides(run_dir: Path) -> dict[str, Any]:
     """The design keys the command line set when the run directory's samples were drawn."""
     record = read_design_file(run_dir)
@@ -188,11 +181,13 @@ def design_changes(config: Config, run_dir: Path,
     samples_path = run_dir / SAMPLES_FILE
     if not samples_path.is_file():
         return None
-    recorded = read_design_record(run_dir)
-    if recorded is not None:
+    record = read_design_file(run_dir) or {}
+    recorded = record.get("inputs")
+    if isinstance(recorded, dict):
         # what the command line set when sampling stands for the config's value
-        kept = {key: value for key, value in recorded_overrides(run_dir).items()
-                if key not in given}
+        overrides = record.get("overrides")
+        kept = {key: value for key, value in (overrides or {}).items() if key not in given} \
+            if isinstance(overrides, dict) else {}
         return changed_keys(recorded, {**design_inputs(config), **kept})
     if _same_as_redrawn(config, samples_path):
         write_design_record(config, run_dir)
@@ -361,4 +356,3 @@ def require_same_simulation(config: Config, run_dir: Path, command: str,
         + f". Run the new model with 'bpsflow sample CONFIG --force' then 'bpsflow run' (the "
         f"old results are moved to {Path(run_dir) / 'previous'}/<timestamp>), or use another "
         f"--run-dir", source=config.source)
-

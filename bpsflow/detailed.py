@@ -727,10 +727,10 @@ def true_convection(config: Config, sample: dict[str, float]) -> dict[str, dict]
 
     The class's surface is its :func:`sensor_surfaces` one.
     """
-    idf = _idf(config)
-    out: dict[str, dict] = {}
     from bpsflow.simulation.idf import surface_user_curves
 
+    idf = _idf(config)
+    out: dict[str, dict] = {}
     for surface_class, surface in sensor_surfaces(config).surfaces.items():
         if surface_user_curves(idf, surface)[0] is None:
             # EnergyPlus's own inside algorithm (no fitted law to compare a refinement with)

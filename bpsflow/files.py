@@ -325,6 +325,23 @@ def inside(root: str | os.PathLike, *parts: str | os.PathLike) -> Path:
     return target
 
 
+def refuse_foreign_file(path: str | os.PathLike, header: str, where: str, what: str) -> None:
+    """Refuse to replace an existing file unless bpsflow wrote it (its first line ``header``).
+
+    ``where`` names the option the path came from and ``what`` the kind of
+    file bpsflow writes there, in the message.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return
+    with open(path, encoding="utf-8", errors="replace") as handle:
+        first = handle.readline()
+    if not first.startswith(header):
+        raise BpsflowError(f"{where}: {path} exists and is not {what} bpsflow wrote; expected a "
+                           f"new file (or an earlier {what.split(' ', 1)[-1]}, which is "
+                           f"replaced)")
+
+
 def check_writable_file(path: str | os.PathLike, where: str) -> Path:
     """Refuse, before any work, a file path that cannot be written; create its folder.
 

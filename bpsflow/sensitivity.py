@@ -572,17 +572,11 @@ def check_screen_target(config: Config, out_path: Path | None) -> Path:
     refused; so is a path bpsflow cannot write.
     """
     from bpsflow.config import refuse_config_chain
-    from bpsflow.files import check_writable_file
+    from bpsflow.files import check_writable_file, refuse_foreign_file
 
     out_path = Path(out_path or default_screen_path(config))
     refuse_config_chain(config, out_path, "--screen-out")
-    if out_path.is_file():
-        with open(out_path, encoding="utf-8", errors="replace") as handle:
-            first = handle.readline()
-        if not first.startswith(SCREENED_HEADER):
-            raise BpsflowError(f"--screen-out: {out_path} exists and is not a reduced config "
-                               f"bpsflow wrote; expected a new file (or an earlier screening "
-                               f"result, which is replaced)")
+    refuse_foreign_file(out_path, SCREENED_HEADER, "--screen-out", "a reduced config")
     return check_writable_file(out_path, "--screen-out")
 
 

@@ -183,7 +183,7 @@ def invalid_ensemble_problems(config: Config, invalid_dir: Path) -> tuple[list[s
     (problems, notes)
         ``problems``: key changes (``model.tests[0].start: 11-08 -> 11-09``)
         or the design's kind, each a reason to refuse; ``notes``: what the
-        record cannot confirm.
+        record cannot confirm, and the instances that failed.
     """
     from bpsflow.calibration.design import CONFIG_FINGERPRINT_FILE
     from bpsflow.design_record import (
@@ -195,6 +195,7 @@ def invalid_ensemble_problems(config: Config, invalid_dir: Path) -> tuple[list[s
         simulation_inputs,
     )
     from bpsflow.sensitivity import SETTINGS_FILE as MORRIS_FILE
+    from bpsflow.simulation.rundir import read_manifest
 
     notes: list[str] = []
     problems: list[str] = []
@@ -211,6 +212,11 @@ def invalid_ensemble_problems(config: Config, invalid_dir: Path) -> tuple[list[s
     elif design is None:
         notes.append(f"{invalid_dir} has no {DESIGN_FILE}: its samples cannot be confirmed "
                      f"to be a random ensemble")
+    manifest = read_manifest(invalid_dir)
+    failed = int((manifest["status"] != "ok").sum()) if "status" in manifest else 0
+    if failed:
+        notes.append(f"{failed} instance(s) of the invalid ensemble failed and are left out "
+                     f"of its scores")
     record = read_simulation_record(invalid_dir)
     if record is None:
         notes.append(f"{invalid_dir} has no {SIMULATION_FILE}: its tests and outputs cannot be "
