@@ -92,14 +92,15 @@ MODELS = {
 #: Models the one-zone surrogate can run.
 SURROGATE_MODELS = ("test_cell",)
 
-FAMILIES = ("gain", "aperture", "infiltration", "mass", "two", "null")
-EFFECT_FAMILIES = ("gain", "aperture", "infiltration", "mass")
+FAMILIES = ("gain", "aperture", "infiltration", "mass", "airing", "two", "null")
+EFFECT_FAMILIES = ("gain", "aperture", "infiltration", "mass", "airing")
 #: Extensions a correct diagnosis may accept for each family.
 FAMILY_EXTENSIONS = {
     "gain": ("internal_gain_schedule",),
     "aperture": ("solar_aperture",),
     "infiltration": ("infiltration", "infiltration_wind", "envelope_ua"),
     "mass": ("thermal_mass",),
+    "airing": ("scheduled_air_exchange",),
 }
 #: Day sets of a drawn gain -> the ``Schedule:Compact`` ``For:`` day type.
 DAY_SETS = {"weekdays": "Weekdays", "weekends": "Weekends", "all days": "AllDays",
@@ -114,7 +115,10 @@ TERM_KEYS = {
     "C": ("infiltration_c_m3s_per_ms", "infiltration_wind_m3s_per_ms"),
     "D": ("infiltration_d_m3s_per_m2s2",),
 }
+#: The key of a drawn effect's true size in :attr:`Built.sizes` (and its limit's).
+SIZE_UNITS = {"gain": "W", "airing": "m3s", "aperture": "m2", "mass": "m2"}
 SIZE_KEYS = {"gain": ("scheduled_gain_w",), "aperture": ("solar_aperture_m2",),
+             "airing": ("scheduled_air_flow_m3s",),
              "mass": ("internal_mass_area_m2",)}
 START_MONTHS = (11, 1, 2, 3)
 
@@ -178,6 +182,11 @@ def _draw_effect(rng: np.random.Generator, family: str) -> Effect:
         end = int(min(24, start + rng.integers(2, 13)))
         shape = {"days": str(rng.choice(list(DAY_SETS))), "start_hour": start,
                  "end_hour": end, "radiant_fraction": round(float(rng.uniform(0.0, 0.7)), 2)}
+    elif family == "airing":
+        # windows opened (or a door held open) for one to four hours on a day set
+        start = int(rng.integers(0, 22))
+        end = int(min(24, start + rng.integers(1, 5)))
+        shape = {"days": str(rng.choice(list(DAY_SETS))), "start_hour": start, "end_hour": end}
     elif family == "aperture":
         shape = {"plane_draw": float(rng.uniform()),
                  "radiant_fraction": round(float(rng.uniform(0.0, 0.7)), 2)}
@@ -487,6 +496,16 @@ def build_truth(truth: Truth, scales: list[float] | None = None,
                                                for t in INFILTRATION_TERMS)})
             limits.append({"family": "infiltration",
                            "coefficients": {t: weights[t] * scale for t in terms}})
+        elif effect.family == "airing":
+            # the loss of 1 m3/s of outdoor air while the schedule is on
+            unit = RHO_CP * _gain_schedule_values(effect.shape, year, row_days) * (
+                setpoint - weather.dry_bulb[rows])
+            limit = ref / max(float(np.std(unit)), 1e-9)
+            size = effect.multiple * limit
+            text.append(_airing_text(name, _free(name + "_open", taken), zone, size,
+                                     effect.shape))
+            sizes.append({"family": "airing", "m3s": size, **effect.shape})
+            limits.append({"family": "airing", "m3s": limit})
         elif effect.family == "mass":
             flows = _mass_flow_per_m2(effect.shape["thickness_m"], setpoint)
             limit = ref / max(float(np.std(flows)), 1e-9)
@@ -509,7 +528,8 @@ def _free(base: str, taken: set[str]) -> str:
 # Written for the bench, field by field: not the candidate extensions' snippets.
 
 
-def _gain_text(name: str, schedule: str, zone: str, watts: float, shape: dict) -> str:
+def _compact_rules(shape: dict) -> str:
+    """``Schedule:Compact`` rules: 1 on the shape's days and hours, else 0."""
     start, end = shape["start_hour"], shape["end_hour"]
     day_rule = [f"Until: {start:02d}:00, 0"] if start > 0 else []
     day_rule.append(f"Until: {end:02d}:00, 1")
@@ -518,12 +538,23 @@ def _gain_text(name: str, schedule: str, zone: str, watts: float, shape: dict) -
     rules = [f"For: {DAY_SETS[shape['days']]}", *day_rule]
     if shape["days"] != "all days":
         rules += ["For: AllOtherDays", "Until: 24:00, 0"]
-    return (f"! bench truth: {watts:.6g} W on {shape['days']}, {start}-{end} h, "
-            f"radiant {shape['radiant_fraction']:g}\n"
+    return ",\n  ".join(rules)
+
+
+def _gain_text(name: str, schedule: str, zone: str, watts: float, shape: dict) -> str:
+    return (f"! bench truth: {watts:.6g} W on {shape['days']}, {shape['start_hour']}-"
+            f"{shape['end_hour']} h, radiant {shape['radiant_fraction']:g}\n"
             f"OtherEquipment, {name}, None, {zone}, {schedule}, EquipmentLevel,\n"
             f"  {watts:.6g}, , , 0, {shape['radiant_fraction']:g}, 0;\n"
-            f"Schedule:Compact, {schedule}, , Through: 12/31,\n  "
-            + ",\n  ".join(rules) + ";\n")
+            f"Schedule:Compact, {schedule}, , Through: 12/31,\n  {_compact_rules(shape)};\n")
+
+
+def _airing_text(name: str, schedule: str, zone: str, flow: float, shape: dict) -> str:
+    return (f"! bench truth: {flow:.6g} m3/s of outdoor air on {shape['days']}, "
+            f"{shape['start_hour']}-{shape['end_hour']} h\n"
+            f"ZoneVentilation:DesignFlowRate, {name}, {zone}, {schedule}, Flow/Zone,\n"
+            f"  {flow:.6g}, , , , Natural, 0, 1, 1, 0, 0, 0;\n"
+            f"Schedule:Compact, {schedule}, , Through: 12/31,\n  {_compact_rules(shape)};\n")
 
 
 def _aperture_text(name: str, schedule: str, zone: str, area: float, radiant: float,
@@ -887,7 +918,7 @@ def size_errors(built: Built, accepted: list[dict]) -> list[float | None]:
             errors.append(_relative(_stacked_gain_w(mine, size), size["W"]))
             continue
         key = next((k for k in SIZE_KEYS[family] if k in fitted), None)
-        true = size["W"] if family == "gain" else size["m2"]
+        true = size[SIZE_UNITS[family]]
         errors.append(None if key is None else _relative(float(fitted[key]), true))
     return errors
 
@@ -969,6 +1000,9 @@ def _truth_text(built: Built | None, truth: Truth) -> str:
         elif f == "aperture":
             parts.append(f"aperture {size['m2']:.3g} m² {size['plane']} "
                          f"rad {size['radiant_fraction']:g}")
+        elif f == "airing":
+            parts.append(f"airing {size['m3s']:.3g} m³/s {size['days']} {size['start_hour']}-"
+                         f"{size['end_hour']} h")
         elif f == "infiltration":
             parts.append("leak " + " + ".join(
                 f"{t} {c:.3g}" for t, c in size["coefficients"].items() if c))

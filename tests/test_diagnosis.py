@@ -201,6 +201,29 @@ def test_weekend_only_gain_is_found_with_its_size(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_scheduled_heat_loss_is_an_air_exchange_on_its_hours(tmp_path):
+    """Windows opened on weekday mornings (a ZoneVentilation object, 07–09 h).
+
+    A loss on a schedule is neither a gain (wrong sign) nor a leak (not at
+    every hour): the scheduled air exchange must be chosen, on those hours,
+    with the flow that was hidden.
+    """
+    base = base_config(tmp_path / "base", days=24)
+    case = make_case(base, tmp_path / "truth", "morning_airing", 0.03, FITTED_TRUTH, seed=3)
+    config = load_config(base)
+    result = diagnose(config, read_measured(case.measured, config).frame, tmp_path / "out",
+                      backend="surrogate", announce=quiet)
+    assert result.verdict == "model_form"
+    assert result.cause["extension"] == "scheduled_air_exchange"
+    accepted = [e for e in result.extensions if e["accepted"]]
+    assert [e["name"] for e in accepted] == ["scheduled_air_exchange"]
+    block = accepted[0]["schedule"]
+    assert (block["day_type"], block["start_hour"], block["end_hour"]) == ("weekdays", 7, 9)
+    assert accepted[0]["fitted"]["scheduled_air_flow_m3s"] == pytest.approx(0.03, rel=0.10)
+    assert result.gain["after"] < 0.5 * result.gain["before"]
+
+
+@pytest.mark.slow
 def test_two_effects_another_law_and_a_radiant_evening_gain_are_both_found(surrogate_base,
                                                                            tmp_path):
     """Infiltration ∝ V² (EnergyPlus's D term) plus a weekday 17–22 h gain, half radiant.
@@ -1065,11 +1088,14 @@ def test_report_says_no_extension_was_tried_when_they_are_switched_off(tmp_path)
 # EnergyPlus: the same questions on the real engine (short runs)
 
 
+# Each is 4-6 min of both cores, so make test-long (and make bench) runs them; make test
+# keeps EnergyPlus diagnoses that run end to end (test_office3zone, test_third_model) and
+# one whose signature run is fatal (test_diagnosis_robust).
 @pytest.mark.energyplus
 @pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.parametrize("effect,value", [
-    # the law's terms chosen by BIC on EnergyPlus: 4 min of both cores, so make test-long
-    pytest.param("wind_infiltration", 0.004, marks=pytest.mark.long),
+    ("wind_infiltration", 0.004),     # the law's terms chosen by BIC on EnergyPlus
     ("office_gain", 150.0)])
 def test_hidden_effect_on_energyplus(effect, value, tmp_path):
     base = base_config(tmp_path / "base", days=20, backend="energyplus",

@@ -44,6 +44,10 @@ def test_two_hundred_draws_cover_every_family_and_shape():
                              "saturday", "sunday") for g in gains)
     assert all(0.0 <= g["radiant_fraction"] <= 0.7 and g["start_hour"] < g["end_hour"] <= 24
                for g in gains)
+    airings = [e.shape for e in effects if e.family == "airing"]
+    assert {"weekdays", "weekends", "all days"} <= {a["days"] for a in airings}
+    assert all(1 <= a["end_hour"] - a["start_hour"] <= 4 and a["end_hour"] <= 24
+               for a in airings)
     terms = {t for e in effects if e.family == "infiltration" for t in e.shape["terms"]}
     assert terms == set(dr.INFILTRATION_TERMS)
     assert all(1.0 <= e.multiple <= 10.0 for e in effects)
@@ -125,7 +129,7 @@ def test_sizes_scale_with_the_multiple_of_the_detection_limit(built):
                     assert size["coefficients"][term] == pytest.approx(
                         effect.multiple * coefficient)
             else:
-                key = "W" if effect.family == "gain" else "m2"
+                key = dr.SIZE_UNITS[effect.family]
                 assert size[key] == pytest.approx(effect.multiple * limit[key])
                 assert limit[key] > 0
 
@@ -259,7 +263,8 @@ def test_an_interrupted_run_is_scored_from_its_finished_rows(tmp_path, monkeypat
     truths = dr.draw_truths(4, 5, ("surrogate",))
     null = dr.Truth(0, "null", "test_cell", "surrogate", (1, 5), 30.0, None, 0.9, 2, [])
     dr._keep(work, "rows", dr.score(null, None, _result("none", []), 2.0))
-    dr._keep(work, "rows", dr.failed_row(truths[1], None, "crash", "boom", 4.0))
+    with_effect = next(t for t in truths if t.effects)
+    dr._keep(work, "rows", dr.failed_row(with_effect, None, "crash", "boom", 4.0))
     dr._keep(work, "nulls", dr.score(null, None, _result("model_form", []), 6.0))
     result = dr.summarise_work(work)
     assert len(result["rows"]) == 2 and len(result["nulls"]) == 1

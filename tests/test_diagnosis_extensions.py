@@ -84,14 +84,18 @@ def daily_swing(power: np.ndarray) -> np.ndarray:
 
 
 def all_extensions(config: Config, folder: Path) -> Config:
-    """``config`` with every new extension: infiltration (4 terms), gain, thermal mass."""
+    """``config`` with every new extension: infiltration (4 terms), gain (01-06 h), thermal
+    mass, scheduled air exchange (19-23 h)."""
     hours = year_hours(config.model.year)
     start_hour = (hours - pd.Timedelta(hours=1)).hour
     gain_on = pd.Series(((start_hour >= 1) & (start_hour < 6)).astype(float), index=hours)
+    airing_on = pd.Series(((start_hour >= 19) & (start_hour < 23)).astype(float), index=hours)
     extended = extend_config(config, EXTENSIONS["infiltration"], folder / "infiltration",
                              output=OUTPUT)
     extended = extend_config(extended, EXTENSIONS["internal_gain_schedule"], folder / "gain",
                              gain_on, output=OUTPUT)
+    extended = extend_config(extended, EXTENSIONS["scheduled_air_exchange"], folder / "air",
+                             airing_on, output=OUTPUT)
     return extend_config(extended, EXTENSIONS["thermal_mass"], folder / "mass", output=OUTPUT)
 
 
@@ -205,7 +209,8 @@ def test_new_extensions_are_nested_at_zero_on_the_surrogate(surrogate_base, tmp_
     rows += [{**zero, name: value} for name, value in INFILTRATION_TERMS.items()]
     rows += [{**zero, "scheduled_gain_w": 300.0},
              {**zero, "scheduled_gain_w": 300.0, "scheduled_gain_radiant_fraction": 0.6},
-             {**zero, "internal_mass_area_m2": 60.0}]
+             {**zero, "internal_mass_area_m2": 60.0},
+             {**zero, "scheduled_air_flow_m3s": 0.05}]
     predicted = simulate(extended, rows, tmp_path / "runs", "surrogate")
     original = simulate(config, [nominal(config)], tmp_path / "runs0", "surrogate")[0]
     # infiltration and gain are exactly nested; the mass keeps a token 0.001 m2
@@ -230,6 +235,12 @@ def test_new_extensions_are_nested_at_zero_on_the_surrogate(surrogate_base, tmp_
     assert np.mean(radiant[on] - level[on]) > 10.0
     assert np.mean(radiant[after] - level[after]) < -2.0
     assert (daily_swing(mass) < daily_swing(original)).all()
+    # an outdoor air flow of 0.05 m3/s while on: a loss of about rho c_p 0.05 (60 W/K) x dT
+    airing = predicted[9] - original
+    airing_on = (start_hour >= 19) & (start_hour < 23)
+    assert 300.0 < np.mean(airing[airing_on & heating]) < 2000.0
+    assert np.mean(np.abs(airing[(start_hour >= 9) & (start_hour < 17)])) < \
+        0.1 * np.mean(airing[airing_on & heating])
 
 
 def test_infiltration_d_term_reproduces_a_hidden_velocity_squared_leak(surrogate_base,
@@ -344,7 +355,8 @@ def test_new_extensions_are_nested_at_zero_on_energyplus(tmp_path):
     rows = [zero, {**zero, "scheduled_gain_radiant_fraction": 0.6}]
     rows += [{**zero, name: value} for name, value in INFILTRATION_TERMS.items()]
     rows += [{**zero, "scheduled_gain_w": 300.0, "scheduled_gain_radiant_fraction": 0.6},
-             {**zero, "internal_mass_area_m2": 60.0}]
+             {**zero, "internal_mass_area_m2": 60.0},
+             {**zero, "scheduled_air_flow_m3s": 0.05}]
     predicted = simulate(extended, rows, tmp_path / "runs", "energyplus")
     original = simulate(config, [nominal(config)], tmp_path / "runs0", "energyplus")[0]
     np.testing.assert_allclose(predicted[1], predicted[0], rtol=0, atol=1e-6)
@@ -362,7 +374,7 @@ def test_new_extensions_are_nested_at_zero_on_energyplus(tmp_path):
     surrogate_config.source = extended.source
     surrogate_config.model.backend = "surrogate"
     surrogate = simulate(surrogate_config, rows, tmp_path / "surrogate", "surrogate")
-    for j in range(2, 7):                     # infiltration terms, radiant gain
+    for j in (2, 3, 4, 5, 6, 8):        # infiltration terms, radiant gain, scheduled air
         on_energyplus, on_surrogate = predicted[j] - predicted[0], surrogate[j] - surrogate[0]
         assert np.mean(on_surrogate) == pytest.approx(np.mean(on_energyplus), rel=0.02)
         assert np.corrcoef(on_surrogate, on_energyplus)[0, 1] > 0.99

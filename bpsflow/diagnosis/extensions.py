@@ -24,6 +24,10 @@ internal_gain_schedule   OtherEquipment, Schedule:File on/off       scheduled_ga
                          best explains the calibration residuals;   scheduled_gain_radiant_
                          day types: weekdays, weekends, all days    fraction (-, 0–0.9)
                          or one day of the week)
+scheduled_air_exchange   ZoneInfiltration:DesignFlowRate (A = 1),   scheduled_air_flow_m3s
+                         Schedule:File on/off block (as the gain's; (m³/s while on)
+                         the block whose heat loss best explains
+                         the residuals): airing, a door held open
 solar_aperture           OtherEquipment, Schedule:File of the       solar_aperture_m2 (m²: W of
                          irradiance on the zone's facade (model     gain per W/m² incident),
                          geometry, pvlib)                           solar_aperture_radiant_
@@ -177,6 +181,16 @@ EXTENSIONS: dict[str, Extension] = {
             _radiant_fraction("scheduled_gain", "the scheduled gain")),
         schedule_file="internal_gain_profile.csv",
         drivers=("hour_of_day", "weekend")),
+    "scheduled_air_exchange": Extension(
+        name="scheduled_air_exchange",
+        description="an unmodelled outdoor air flow on an hour-of-day / weekday profile "
+                    "(airing, a door held open, a fan on a timer): a scheduled heat loss",
+        snippet="scheduled_air_exchange.idf",
+        parameters=(NewParameter(
+            "scheduled_air_flow_m3s", "ZoneInfiltration:DesignFlowRate", "Design Flow Rate",
+            0.0, 0.5, "m3/s", "outdoor air flow while the block schedule is on"),),
+        schedule_file="air_exchange_profile.csv",
+        drivers=("hour_of_day", "weekend")),
     "solar_aperture": Extension(
         name="solar_aperture",
         description="an unmodelled solar gain through a facade (gain factor × incident solar)",
@@ -238,6 +252,14 @@ EXTENSIONS: dict[str, Extension] = {
         drivers=("hour_of_day", "outdoor_air_temperature", "global_horizontal_radiation",
                  "incident_solar_south", "incident_solar_east", "incident_solar_west",
                  "incident_solar_north", "incident_solar_roof")),
+}
+
+#: Extensions switched on and off by an hourly block (day type × hours) found in the
+#: residuals (:func:`gain_blocks`): the parameter that sets the level while on, and the
+#: sign of the effect as a gain (+1: heat into the zone; -1: an air flow's heat loss).
+SCHEDULED_BLOCKS: dict[str, tuple[str, float]] = {
+    "internal_gain_schedule": ("scheduled_gain_w", 1.0),
+    "scheduled_air_exchange": ("scheduled_air_flow_m3s", -1.0),
 }
 
 #: Driver name -> the extensions that can produce its signature, most specific first.

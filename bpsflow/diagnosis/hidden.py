@@ -113,6 +113,19 @@ ZoneInfiltration:DesignFlowRate,
     0, 1, 0, 0;              !- A, B (|dT|), C, D
 Schedule:Constant, {schedule}, , 1;
 """,
+    "morning_airing": """
+ZoneVentilation:DesignFlowRate,
+    {object}, {zone}, {schedule}, Flow/Zone,
+    {value},                 !- Design Flow Rate {m3/s} while the windows are open
+    , , ,
+    Natural, 0, 1,           !- Ventilation Type, Fan Pressure Rise, Fan Total Efficiency
+    1, 0, 0, 0;              !- A, B, C, D: the design flow, whatever the weather
+Schedule:Compact,
+    {schedule}, ,
+    Through: 12/31,
+    For: Weekdays, Until: 07:00, 0, Until: 09:00, 1, Until: 24:00, 0,
+    For: AllOtherDays, Until: 24:00, 0;
+""",
     "heavy_mass": """
 Material,
     {object}_material, MediumRough,
@@ -141,6 +154,7 @@ EXPECTED: dict[str, tuple[tuple[str, ...], str]] = {
     "wind_squared_infiltration": (("wind_speed",), "infiltration"),
     "temperature_infiltration": (("outdoor_air_temperature",), "infiltration"),
     "heavy_mass": (("hour_of_day", "outdoor_air_temperature"), "thermal_mass"),
+    "morning_airing": (("hour_of_day", "weekend"), "scheduled_air_exchange"),
 }
 
 #: The extension parameter that measures each effect's size (same units as the effect's value).
@@ -154,6 +168,7 @@ MEASURE: dict[str, str] = {
     "wind_squared_infiltration": "infiltration_d_m3s_per_m2s2",
     "temperature_infiltration": "infiltration_b_m3s_per_k",
     "heavy_mass": "internal_mass_area_m2",
+    "morning_airing": "scheduled_air_flow_m3s",
 }
 
 

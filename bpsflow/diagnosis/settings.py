@@ -11,7 +11,8 @@ config without the section diagnoses its first measured output::
       min_share: 0.05             # a driver must explain this share of residual variance
       min_amplitude: 0.005        # ... and move the output by this fraction of its mean
       plausible_change: 0.5       # relative change of a fixed parameter still "plausible"
-      extensions: [infiltration, internal_gain_schedule, solar_aperture, thermal_mass]
+      extensions: [infiltration, internal_gain_schedule, scheduled_air_exchange,
+                   solar_aperture, thermal_mass]
       zone: null                  # the zone the extensions are written for (see below)
       extension_zones: {}         # per extension, e.g. {solar_aperture: Office_East}
       max_rounds: 4               # extend, re-diagnose, at most this many times
@@ -42,14 +43,16 @@ from bpsflow.schema import StrictModel
 #: model's stratification is already an input (stratification_gradient,
 #: return_air_offset), so a mis-valued one is a ``parameter`` verdict.
 ExtensionName = Literal["infiltration_wind", "internal_gain_schedule", "solar_aperture",
-                        "envelope_ua", "infiltration", "thermal_mass"]
+                        "envelope_ua", "infiltration", "thermal_mass",
+                        "scheduled_air_exchange"]
 
 #: The default candidate families. ``infiltration`` fits the whole
 #: ZoneInfiltration:DesignFlowRate law (A + B·|ΔT| + C·V + D·V², terms by BIC), so the
 #: one-term ``infiltration_wind`` (C) and ``envelope_ua`` (A) are only tried when a
 #: config lists them.
 ALL_EXTENSIONS: list[ExtensionName] = ["infiltration", "internal_gain_schedule",
-                                       "solar_aperture", "thermal_mass"]
+                                       "scheduled_air_exchange", "solar_aperture",
+                                       "thermal_mass"]
 
 
 class DiagnosisSettings(StrictModel):

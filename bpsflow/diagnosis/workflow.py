@@ -55,6 +55,7 @@ from bpsflow.diagnosis.drivers import derive_drivers
 from bpsflow.diagnosis.extensions import (
     DAY_TYPES,
     EXTENSIONS,
+    SCHEDULED_BLOCKS,
     WEEK_DAYS,
     block_profile,
     building_level_zone,
@@ -1239,6 +1240,7 @@ class Candidate:
 #: chosen by fit, not only by the strongest driver").
 FAMILY_GROUPS: dict[str, tuple[str, ...]] = {
     "internal_gain_schedule": ("hour", "weekend", "day", "irradiance"),
+    "scheduled_air_exchange": ("hour", "weekend", "day", "temperature"),
     "solar_aperture": ("hour", "irradiance"),
     "infiltration": ("temperature", "wind"),
     "infiltration_wind": ("wind",),
@@ -1287,8 +1289,8 @@ def candidate_causes(context: _Context, current: Model, significant: list,
         if family == "solar_aperture":
             out += _aperture_candidates(context, current, driver, accepted,
                                         {t.name for t in significant})
-        elif family == "internal_gain_schedule":
-            out += _gain_candidates(context, current, driver)
+        elif family in SCHEDULED_BLOCKS:
+            out += _block_candidates(context, current, family, driver)
         elif family in accepted and not _is_law(family):
             continue
         else:
@@ -1325,9 +1327,15 @@ def _plain_candidate(context: _Context, current: Model, family: str,
                      law_terms=_is_law(family))
 
 
-def _gain_candidates(context: _Context, current: Model, driver: str) -> list[Candidate]:
+def _block_candidates(context: _Context, current: Model, family: str,
+                      driver: str) -> list[Candidate]:
+    """The shortlisted on/off blocks of a scheduled extension (:data:`SCHEDULED_BLOCKS`).
+
+    A gain's blocks are where the residuals ask for heat; an air exchange's
+    where they ask for a loss (the gain's screen with the sign turned).
+    """
     d, config = context.data, current.config
-    family = "internal_gain_schedule"
+    as_gain = SCHEDULED_BLOCKS[family][1]
     zone = diagnosis_zone(config, d.output, family)
     residual = d.y - current.fit.prediction
     cal = d.calibration
@@ -1336,9 +1344,10 @@ def _gain_candidates(context: _Context, current: Model, driver: str) -> list[Can
     still = 1e-6 * max(float(np.max(np.abs(d.y[cal]))), 1e-12)
     responsive = (np.abs(current.fit.prediction[cal]) > still) | (np.abs(d.y[cal]) > still)
     blocks = gain_blocks(pd.Series(residual[cal], index=d.timestamps[cal]),
-                         output_sign(config, d.output, current.fit.prediction[cal],
-                                     d.drivers["outdoor_air_temperature"].to_numpy()[cal]
-                                     if "outdoor_air_temperature" in d.drivers else None),
+                         as_gain * output_sign(
+                             config, d.output, current.fit.prediction[cal],
+                             d.drivers["outdoor_air_temperature"].to_numpy()[cal]
+                             if "outdoor_air_temperature" in d.drivers else None),
                          fitted_jacobian=current.fit.jacobian[cal],
                          count=context.settings.gain_blocks, responsive=responsive)
     known = {p.name for p in config.parameters}
@@ -1542,10 +1551,10 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
     # the causes that are cross-validated): each edge step is a batch of fits
     for index in order[:settings.cv_candidates]:
         candidate, extended, fitted, detail, fit = chosen[index]
-        if candidate.family == "internal_gain_schedule" and "schedule" in detail:
+        if candidate.family in SCHEDULED_BLOCKS and "schedule" in detail:
             new = [p for p in fitted if p.name not in {q.name for q in current.fitted}]
             extended, new, detail, fit = _refine_block(context, current, extended, new, detail,
-                                                       fit, round_number)
+                                                       fit, round_number, candidate.family)
             chosen[index] = (candidate, extended, [*_without(current.fitted, new), *new],
                              detail, fit)
     bics, order = ranking()
@@ -2331,8 +2340,12 @@ def _cross_validate(context: _Context, union: Config, union_sample: dict, curren
 
 
 def _refine_block(context: _Context, current: Model, extended: Config, new: list[Parameter],
-                  detail: dict, fit: Fit, round_number: int, steps: int = 8):
-    """Move the best gain block's edges while the fit improves; one real refit at the end.
+                  detail: dict, fit: Fit, round_number: int,
+                  family: str, steps: int = 8):
+    """Move the best block's edges while the fit improves; one real refit at the end.
+
+    ``family`` is the scheduled extension (:data:`SCHEDULED_BLOCKS`): a gain, or
+    an air exchange whose block is refined the same way.
 
     The screen that shortlisted the blocks is linear on the residual, and the
     calibration bent the existing parameters towards the missing gain, so the
@@ -2356,8 +2369,8 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
 
     d, config = context.data, current.config
     cal = d.calibration
-    extension = EXTENSIONS["internal_gain_schedule"]
-    directory = context.out_dir / "extensions" / f"round{round_number}_internal_gain_schedule"
+    extension = EXTENSIONS[family]
+    directory = context.out_dir / "extensions" / f"round{round_number}_{family}"
     fitted = [*_without(current.fitted, new), *new]
     names = [p.name for p in fitted]
     ranges = np.array([parameter_range(p) for p in fitted]).reshape(-1, 2)
@@ -2365,7 +2378,7 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     # the block's own columns (its level, its radiant fraction): a block that jumps to
     # other hours takes its simulated effect per watt as the level's column
     level_column = next(i for i, p in enumerate(fitted)
-                        if p in new and _reported(p) == "scheduled_gain_w")
+                        if p in new and _reported(p) == SCHEDULED_BLOCKS[family][0])
     block_columns = [i for i, p in enumerate(fitted) if p in new]
 
     def corrected(prediction: np.ndarray, values: np.ndarray,
@@ -2389,7 +2402,8 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
     moves: list[dict] = []
     reached: tuple[Config, list[Parameter]] | None = None
     jumps, without = _pulse_jumps(context, current, config, detail, fitted, new, state_values,
-                                  level_column, corrected, own_design, directory, round_number)
+                                  level_column, corrected, own_design, directory, round_number,
+                                  family)
     tried.update(jumps)
     for step_number in range(steps):
         kind, first, last = block["day_type"], block["start_hour"], block["end_hour"]
@@ -2406,8 +2420,7 @@ def _refine_block(context: _Context, current: Model, extended: Config, new: list
         union, variants = config, []
         for number, (day_type, a, b) in enumerate(neighbours, start=1):
             schedule = profile_schedule(block_profile(day_type, a, b), config.model.year)
-            number = _fresh_variant(config, "internal_gain_schedule", 1000 + 10 * step_number
-                                    + number)
+            number = _fresh_variant(config, family, 1000 + 10 * step_number + number)
             variant = extend_config(config, extension, directory / f"edge{step_number}",
                                     schedule, number, zone=detail.get("zone"), output=d.output)
             union = _merge(union, variant)
@@ -2488,7 +2501,8 @@ def _pulse_days(kind: str) -> list[str]:
 def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict,
                  fitted: list[Parameter], new: list[Parameter], values: np.ndarray,
                  level_column: int, corrected, own_design, directory: Path,
-                 round_number: int) -> tuple[list[tuple[str, int, int]], np.ndarray | None]:
+                 round_number: int, family: str
+                 ) -> tuple[list[tuple[str, int, int]], np.ndarray | None]:
     """The blocks whose simulated response fits the data best, on the gain's day type
     and, for a single day, the day before (:func:`_pulse_days`).
 
@@ -2515,7 +2529,7 @@ def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict
     level = float(values[level_column])
     if level <= 0:
         return [], None
-    extension = EXTENSIONS["internal_gain_schedule"]
+    extension = EXTENSIONS[family]
     known = {q.name for q in config.parameters}
     days = _pulse_days(kind)
     union, pulses = config, []
@@ -2523,8 +2537,7 @@ def _pulse_jumps(context: _Context, current: Model, config: Config, detail: dict
         for hour in range(24):
             schedule = profile_schedule(block_profile(day_type, hour, hour + 1),
                                         config.model.year)
-            number = _fresh_variant(config, "internal_gain_schedule",
-                                    2000 + 100 * day_number + hour)
+            number = _fresh_variant(config, family, 2000 + 100 * day_number + hour)
             variant = extend_config(config, extension, directory / "pulses", schedule, number,
                                     zone=detail.get("zone"), output=d.output)
             union = _merge(union, variant)
