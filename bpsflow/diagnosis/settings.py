@@ -110,7 +110,10 @@ class DiagnosisSettings(StrictModel):
     ``gain_alpha`` is the one-sided level of the out-of-fold
     forecast-encompassing test an extension must pass (besides a lower BIC and a lower held-out
     CV(RMSE)) to be accepted; after the last round every accepted extension
-    must pass it again beside the others (backward pruning).
+    must pass it again beside the others (backward pruning). A cause found by
+    the shape screen (no driver significant) after another was accepted must
+    pass at ``alpha`` instead: that residual holds the accepted cause's small
+    misfit, and every candidate's shape was tried on it.
 
     ``cv_refit``: how each cross-validation fold is refitted: ``simulated``
     (a few Levenberg–Marquardt steps, one batch; the surrogate's default) or

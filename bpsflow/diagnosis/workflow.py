@@ -470,6 +470,9 @@ class _Context:
         self.oof_cache: dict[tuple[str, int, str], np.ndarray] = {}
         self.notes: list[str] = []       # Diagnosis.notes of the dataset under diagnosis
         self.stage = "base"              # the last batch started (named in a failure note)
+        #: the level of the round's acceptance test (``gain_alpha``, or ``alpha`` for a
+        #: shape screen after an accepted cause: see :func:`_diagnose_rounds`)
+        self.acceptance_alpha = settings.gain_alpha
 
     def simulator(self, config: Config, label: str):
         # a failed run is a NaN row, never an exception (fit_many, signatures handle it)
@@ -661,6 +664,7 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
             else "no significant structure in the residuals")
             + (f"; suggestive: {', '.join(t.name for t in suggestive)}" if suggestive else ""))
         called: list[Candidate] | None = None
+        context.acceptance_alpha = settings.gain_alpha
         if not significant and not suggestive:
             if not settings.shape_screen:
                 break
@@ -671,6 +675,12 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
                                    accepted_causes, round_number, announce)
             if not called:
                 break
+            if accepted_causes:
+                # what is left beside an accepted cause holds its small misfit (a block's
+                # edges, a law's curvature), and the screen tried every candidate's shape on
+                # it: a further cause must pass at the family-wise level of the driver
+                # tests, not a single test's
+                context.acceptance_alpha = min(settings.alpha, settings.gain_alpha)
         explained = None
         if round_number == 1 and significant:
             explained = _parameter_check(context, result, current, residual, significant)
@@ -1578,7 +1588,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                    and (p.provenance or {}).get("extension") == candidate.family)]
         cv = oof.get(index)
         test: dict = cv["test"] if cv else {}
-        improves = bool(cv is not None and test["p_value"] < settings.gain_alpha
+        improves = bool(cv is not None and test["p_value"] < context.acceptance_alpha
                         and bics[index] < bic_before
                         and cv["cvrmse_after"] < cv["cvrmse_before"])
         at_zero = null_sized(fit, new)
