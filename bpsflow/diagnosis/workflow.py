@@ -470,9 +470,6 @@ class _Context:
         self.oof_cache: dict[tuple[str, int, str], np.ndarray] = {}
         self.notes: list[str] = []       # Diagnosis.notes of the dataset under diagnosis
         self.stage = "base"              # the last batch started (named in a failure note)
-        #: the level of the round's acceptance test (``gain_alpha``, or ``alpha`` for a
-        #: shape screen after an accepted cause: see :func:`_diagnose_rounds`)
-        self.acceptance_alpha = settings.gain_alpha
 
     def simulator(self, config: Config, label: str):
         # a failed run is a NaN row, never an exception (fit_many, signatures handle it)
@@ -664,7 +661,7 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
             else "no significant structure in the residuals")
             + (f"; suggestive: {', '.join(t.name for t in suggestive)}" if suggestive else ""))
         called: list[Candidate] | None = None
-        context.acceptance_alpha = settings.gain_alpha
+        acceptance_alpha = settings.gain_alpha
         if not significant and not suggestive:
             if not settings.shape_screen:
                 break
@@ -680,7 +677,7 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
                 # edges, a law's curvature), and the screen tried every candidate's shape on
                 # it: a further cause must pass at the family-wise level of the driver
                 # tests, not a single test's
-                context.acceptance_alpha = min(settings.alpha, settings.gain_alpha)
+                acceptance_alpha = min(settings.alpha, settings.gain_alpha)
         explained = None
         if round_number == 1 and significant:
             explained = _parameter_check(context, result, current, residual, significant)
@@ -698,7 +695,7 @@ def _diagnose_rounds(context: _Context, result: Diagnosis, base: Model,
             result.unexplained = [t.name for t in significant]
             break
         entries = _try_extensions(context, result, current, candidates, residual, round_number,
-                                  announce)
+                                  announce, acceptance_alpha)
         passed = [(e, m) for e, m in entries if e["passed"] and m is not None]
         result.extensions += [e for e, _ in entries]
         if explained is not None:
@@ -1407,8 +1404,13 @@ def _aperture_candidates(context: _Context, current: Model, driver: str,
 
 def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                     candidates: list[Candidate], residual: np.ndarray, round_number: int,
-                    announce: Announce) -> list[tuple[dict, Model | None]]:
+                    announce: Announce, acceptance_alpha: float
+                    ) -> list[tuple[dict, Model | None]]:
     """Fit every candidate's variants, choose each one's shape, cross-validate the best causes.
+
+    ``acceptance_alpha`` is the level of the out-of-fold encompassing test a
+    cause must pass (``gain_alpha``, or ``alpha`` in a shape-screen round after
+    an accepted cause: :func:`_diagnose_rounds`).
 
     All variants are fitted in one batch on the union of their IDF objects:
     every extension is nested at zero, so with the other candidates' new
@@ -1588,7 +1590,7 @@ def _try_extensions(context: _Context, result: Diagnosis, current: Model,
                    and (p.provenance or {}).get("extension") == candidate.family)]
         cv = oof.get(index)
         test: dict = cv["test"] if cv else {}
-        improves = bool(cv is not None and test["p_value"] < context.acceptance_alpha
+        improves = bool(cv is not None and test["p_value"] < acceptance_alpha
                         and bics[index] < bic_before
                         and cv["cvrmse_after"] < cv["cvrmse_before"])
         at_zero = null_sized(fit, new)
